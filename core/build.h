@@ -1,0 +1,80 @@
+// canopy: the build entry points, with the scheduler a template parameter.
+//
+//   canopy::Bvh bvh = canopy::build<canopy::Tbb>(mesh.view(), options);
+//
+// Every scheduler produces the same bits (see bvh.h for the layout).
+#pragma once
+
+#include "build_state.h"
+#include "error.h"
+
+#include <concepts>
+#include <thread>
+
+namespace canopy {
+
+// A scheduler is a type with a name and a static run(BuildState&) that
+// prepares the primitives and builds the tree into state.bvh.
+template <class S>
+concept Scheduler = requires(BuildState& st) {
+    { S::name } -> std::convertible_to<const char*>;
+    S::run(st);
+};
+
+namespace detail {
+
+inline uint32_t resolve_threads(uint32_t asked) {
+    if (asked) return asked;
+    const unsigned hw = std::thread::hardware_concurrency();
+    return hw ? hw : 1;
+}
+
+template <Scheduler S>
+Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
+    st.options.check();
+    st.threads = resolve_threads(st.options.threads);
+    st.n = static_cast<uint32_t>(count);
+    if (count == 0) {
+        if (stats) *stats = BuildStats{};
+        return {};
+    }
+    const uint32_t leaves_needed = (st.n + st.options.max_leaf - 1) / st.options.max_leaf;
+    if (ceil_log2(leaves_needed) > st.options.max_depth)
+        throw OptionError("max_depth " + std::to_string(st.options.max_depth) + " is too small for " +
+                          std::to_string(count) + " primitives in leaves of at most " +
+                          std::to_string(st.options.max_leaf) + " (needs " +
+                          std::to_string(ceil_log2(leaves_needed)) + ")");
+    st.refs.allocate(count);
+    st.scratch.allocate(count);
+    st.bvh.permutation.resize(count);
+    S::run(st);
+    if (stats) *stats = st.stats;
+    return std::move(st.bvh);
+}
+
+}  // namespace detail
+
+// Builds over an indexed triangle mesh. Throws InputError for bad triangles
+// (index out of range, non-finite coordinate) naming the lowest such one,
+// and OptionError for bad options.
+template <Scheduler S>
+Bvh build(const TriangleView& mesh, const BuildOptions& options = {}, BuildStats* stats = nullptr) {
+    check_triangle_input(mesh);
+    BuildState st;
+    st.options = options;
+    st.mesh = &mesh;
+    return detail::run_build<S>(st, mesh.triangle_count(), stats);
+}
+
+// Builds over caller-given primitive boxes (any primitive type); the
+// permutation holds indices into `boxes`.
+template <Scheduler S>
+Bvh build(std::span<const Box> boxes, const BuildOptions& options = {}, BuildStats* stats = nullptr) {
+    check_box_input(boxes);
+    BuildState st;
+    st.options = options;
+    st.boxes = boxes;
+    return detail::run_build<S>(st, boxes.size(), stats);
+}
+
+}  // namespace canopy

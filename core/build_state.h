@@ -1,0 +1,72 @@
+// canopy: what one build owns while it runs, shared by every scheduler.
+#pragma once
+
+#include "bvh.h"
+#include "kernel.h"
+#include "mesh.h"
+#include "options.h"
+#include "primitives.h"
+
+#include <cstdint>
+#include <memory>
+#include <span>
+
+namespace canopy {
+
+// Counters a build reports besides the tree.
+struct BuildStats {
+    SkipCounts skipped;
+    uint32_t threads_used = 1;  // threads the scheduler actually ran on
+};
+
+// An array that is not zero-filled on allocation (every slot is written by
+// the build before it is read).
+template <class T>
+struct RawArray {
+    std::unique_ptr<T[]> data;
+    size_t size = 0;
+    void allocate(size_t n) {
+        data.reset(new T[n]);
+        size = n;
+    }
+    T* get() const { return data.get(); }
+};
+
+struct BuildState {
+    BuildOptions options;
+    uint32_t threads = 1;  // upper bound asked for (resolved, >= 1)
+    uint32_t n = 0;
+
+    const TriangleView* mesh = nullptr;  // one of mesh / boxes is the input
+    std::span<const Box> boxes;
+
+    RawArray<PrimRef> refs;
+    RawArray<uint32_t> scratch;
+    Bvh bvh;  // bvh.permutation is the id array the kernel partitions
+    NodeTask root;
+    BuildStats stats;
+
+    KernelContext context() { return {refs.get(), bvh.permutation.data(), scratch.get(), &options}; }
+
+    // Computes refs[first, last) and sets ids[first, last) to the identity.
+    PrepareSummary prepare_range(size_t first, size_t last) {
+        uint32_t* ids = bvh.permutation.data();
+        for (size_t i = first; i < last; ++i) ids[i] = static_cast<uint32_t>(i);
+        return mesh ? prepare_triangles(*mesh, first, last, refs.get())
+                    : prepare_boxes(boxes, first, last, refs.get());
+    }
+    // Throws for the lowest rejected primitive; otherwise sets up the root.
+    void finish_prepare(const PrepareSummary& s) {
+        if (s.first_bad != PrepareSummary::kNone) {
+            if (mesh) throw_bad_triangle(*mesh, s.first_bad);
+            throw_bad_box(boxes, s.first_bad);
+        }
+        root = NodeTask{};
+        root.begin = 0;
+        root.end = n;
+        root.bounds = s.bounds;
+        root.cbounds = s.cbounds;
+    }
+};
+
+}  // namespace canopy

@@ -1,0 +1,65 @@
+// canopy: the BVH type (flat node array + primitive permutation).
+//
+// Canonical layout (the contract every scheduler reproduces bit for bit):
+//  - node 0 is the root;
+//  - an inner node (count == 0) stores in `index` the position c of its first
+//    child; its second child is c + 1;
+//  - child pairs are placed in depth-first pre-order of their parents, left
+//    subtree first: the root's children are 1 and 2, the left child's
+//    children 3 and 4, and so on;
+//  - a leaf (count > 0) covers permutation[index, index + count), a
+//    contiguous range left in the order the partition produced.
+// An empty input gives an empty BVH (no nodes, no permutation).
+#pragma once
+
+#include "geometry.h"
+
+#include <cstdint>
+#include <cstring>
+#include <string>
+#include <vector>
+
+namespace canopy {
+
+struct Node {
+    float min[3];
+    float max[3];
+    uint32_t index;  // inner: first child; leaf: first permutation slot
+    uint32_t count;  // 0 for an inner node, primitive count for a leaf
+
+    bool is_leaf() const { return count != 0; }
+    Box box() const { return Box{Vec3(min[0], min[1], min[2]), Vec3(max[0], max[1], max[2])}; }
+    void set_box(const Box& b) {
+        for (int a = 0; a < 3; ++a) {
+            min[a] = b.lo[a];
+            max[a] = b.hi[a];
+        }
+    }
+};
+static_assert(sizeof(Node) == 32, "Node must be 32 bytes");
+
+struct Bvh {
+    std::vector<Node> nodes;
+    std::vector<uint32_t> permutation;  // ids of the input primitives
+
+    bool empty() const { return nodes.empty(); }
+    bool operator==(const Bvh& o) const {
+        return nodes.size() == o.nodes.size() && permutation == o.permutation &&
+               (nodes.empty() ||
+                std::memcmp(nodes.data(), o.nodes.data(), nodes.size() * sizeof(Node)) == 0);
+    }
+};
+
+// FNV-1a 64-bit over the node array's bytes followed by the permutation's
+// bytes, as stored (little-endian).
+uint64_t tree_hash(const Bvh& bvh);
+// 16 lowercase hex digits, no prefix.
+std::string tree_hash_hex(const Bvh& bvh);
+
+// The binary file format: the 8 bytes "CANOPYBV", then little-endian uint32
+// version (1), node count, primitive count, 0; then the node array and the
+// permutation exactly as in memory. Both throw canopy::Error on failure.
+void save_bvh(const Bvh& bvh, const std::string& path);
+Bvh load_bvh(const std::string& path);
+
+}  // namespace canopy

@@ -1,0 +1,38 @@
+// canopy: build options.
+#pragma once
+
+#include <cstdint>
+
+namespace canopy {
+
+// Hard limits. Exceeding them is an OptionError / InputError, never a wrap.
+inline constexpr uint32_t kMaxBins = 256;
+inline constexpr uint32_t kMinBins = 2;
+// Leaf sizes are stored in a uint32 field, but a leaf holds at most 255
+// primitives (8 bits), as in most traversal kernels.
+inline constexpr uint32_t kMaxLeafSize = 255;
+// Primitive ids are uint32; one value is kept free so counts fit as well.
+inline constexpr uint64_t kMaxPrimitives = 0xFFFFFFFEull;
+inline constexpr uint32_t kMaxDepthCap = 255;
+
+struct BuildOptions {
+    // Bins per axis (2..256). Nodes with few primitives use fewer bins:
+    // bins_for(n) = min(bins, max(4, bit_ceil(n) / 2)), and never fewer than 2.
+    uint32_t bins = 16;
+    // Largest leaf (1..255): a hard cap.
+    uint32_t max_leaf = 4;
+    // SAH costs of one traversal step and one primitive intersection.
+    float traversal_cost = 1.0f;
+    float intersection_cost = 1.0f;
+    // Depth cap (root at depth 0). A branch switches to middle splits when
+    // its remaining budget max_depth - depth is no more than
+    // ceil(log2(primitive count)), so no leaf is deeper than max_depth.
+    uint32_t max_depth = 64;
+    // Thread upper bound for parallel schedulers (0 = all hardware threads).
+    uint32_t threads = 0;
+
+    // Throws OptionError when a field is out of range.
+    void check() const;
+};
+
+}  // namespace canopy

@@ -1,0 +1,119 @@
+#include "primitives.h"
+
+#include "error.h"
+#include "options.h"
+
+#include <cmath>
+#include <sstream>
+
+namespace canopy {
+
+namespace {
+
+bool finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+Vec3 canonical(const Vec3& v) { return {canonical_zero(v.x), canonical_zero(v.y), canonical_zero(v.z)}; }
+
+// The centre of [lo, hi], computed in double so that it neither overflows
+// (lo + hi at +-FLT_MAX) nor leaves the box through underflow.
+Vec3 centre(const Vec3& lo, const Vec3& hi) {
+    Vec3 c;
+    for (int a = 0; a < 3; ++a) c[a] = static_cast<float>((double(lo[a]) + double(hi[a])) * 0.5);
+    return canonical(c);
+}
+
+void record(PrimRef& r, PrepareSummary& s, const Vec3& lo, const Vec3& hi) {
+    r.lo = canonical(lo);
+    r.hi = canonical(hi);
+    r.c = centre(r.lo, r.hi);
+    s.bounds.lo = glm::min(s.bounds.lo, r.lo);
+    s.bounds.hi = glm::max(s.bounds.hi, r.hi);
+    s.cbounds.extend(r.c);
+}
+
+std::string vec_str(const Vec3& v) {
+    std::ostringstream os;
+    os << '(' << v.x << ", " << v.y << ", " << v.z << ')';
+    return os.str();
+}
+
+}  // namespace
+
+void check_triangle_input(const TriangleView& mesh) {
+    if (mesh.indices.size() % 3 != 0)
+        throw InputError("triangle index array has " + std::to_string(mesh.indices.size()) +
+                         " entries, not a multiple of 3");
+    if (mesh.triangle_count() > kMaxPrimitives)
+        throw InputError("too many triangles: " + std::to_string(mesh.triangle_count()) +
+                         " (the limit is " + std::to_string(kMaxPrimitives) + ")");
+}
+
+void check_box_input(std::span<const Box> boxes) {
+    if (boxes.size() > kMaxPrimitives)
+        throw InputError("too many primitives: " + std::to_string(boxes.size()) + " (the limit is " +
+                         std::to_string(kMaxPrimitives) + ")");
+}
+
+PrepareSummary prepare_triangles(const TriangleView& mesh, size_t first, size_t last, PrimRef* out) {
+    PrepareSummary s;
+    const size_t nv = mesh.vertices.size();
+    const uint32_t* idx = mesh.indices.data();
+    const Vec3* v = mesh.vertices.data();
+    for (size_t t = first; t < last; ++t) {
+        const uint32_t i0 = idx[3 * t], i1 = idx[3 * t + 1], i2 = idx[3 * t + 2];
+        if (i0 >= nv || i1 >= nv || i2 >= nv) {
+            if (s.first_bad == PrepareSummary::kNone) s.first_bad = t;
+            continue;
+        }
+        const Vec3 a = v[i0], b = v[i1], c = v[i2];
+        const Vec3 lo = glm::min(a, glm::min(b, c));
+        const Vec3 hi = glm::max(a, glm::max(b, c));
+        if (!finite(lo) || !finite(hi)) {
+            if (s.first_bad == PrepareSummary::kNone) s.first_bad = t;
+            continue;
+        }
+        record(out[t], s, lo, hi);
+    }
+    return s;
+}
+
+PrepareSummary prepare_boxes(std::span<const Box> boxes, size_t first, size_t last, PrimRef* out) {
+    PrepareSummary s;
+    for (size_t i = first; i < last; ++i) {
+        const Box& b = boxes[i];
+        if (!finite(b.lo) || !finite(b.hi) || b.is_empty()) {
+            if (s.first_bad == PrepareSummary::kNone) s.first_bad = i;
+            continue;
+        }
+        record(out[i], s, b.lo, b.hi);
+    }
+    return s;
+}
+
+void throw_bad_triangle(const TriangleView& mesh, size_t t) {
+    const size_t nv = mesh.vertices.size();
+    for (int k = 0; k < 3; ++k) {
+        const uint32_t i = mesh.indices[3 * t + k];
+        if (i >= nv)
+            throw InputError("triangle " + std::to_string(t) + ": vertex index " + std::to_string(i) +
+                             " is out of range (the mesh has " + std::to_string(nv) + " vertices)");
+    }
+    for (int k = 0; k < 3; ++k) {
+        const uint32_t i = mesh.indices[3 * t + k];
+        if (!finite(mesh.vertices[i]))
+            throw InputError("triangle " + std::to_string(t) + ": vertex " + std::to_string(i) +
+                             " has a non-finite coordinate " + vec_str(mesh.vertices[i]));
+    }
+    throw InputError("triangle " + std::to_string(t) + " is invalid");
+}
+
+void throw_bad_box(std::span<const Box> boxes, size_t i) {
+    const Box& b = boxes[i];
+    if (!finite(b.lo) || !finite(b.hi))
+        throw InputError("primitive box " + std::to_string(i) + " has a non-finite coordinate: " +
+                         vec_str(b.lo) + " - " + vec_str(b.hi));
+    throw InputError("primitive box " + std::to_string(i) + " is inverted (lo > hi): " + vec_str(b.lo) +
+                     " - " + vec_str(b.hi));
+}
+
+}  // namespace canopy

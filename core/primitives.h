@@ -1,0 +1,59 @@
+// canopy: per-primitive bounds and centroids, computed once per build.
+//
+// The build never looks at the input triangles again after this step: every
+// node reads the records below through the permutation of primitive ids.
+#pragma once
+
+#include "geometry.h"
+#include "mesh.h"
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+namespace canopy {
+
+// One record per input primitive, indexed by its (uint32) id: its box and
+// the centre of that box (the "centroid" the bins are built over). 36 bytes,
+// read in one go by binning and partitioning. -0 is stored as +0.
+struct PrimRef {
+    Vec3 lo;
+    Vec3 hi;
+    Vec3 c;
+};
+static_assert(sizeof(PrimRef) == 36);
+
+// What a range of primitives produced: the union of their boxes and of their
+// centroids, and the first primitive (lowest index) that was rejected.
+struct PrepareSummary {
+    static constexpr uint64_t kNone = ~uint64_t(0);
+    Box bounds;
+    Box cbounds;
+    uint64_t first_bad = kNone;
+
+    void merge(const PrepareSummary& o) {
+        bounds.extend(o.bounds);
+        cbounds.extend(o.cbounds);
+        if (o.first_bad < first_bad) first_bad = o.first_bad;
+    }
+};
+
+// Fills out[first..last) from triangles first..last of the mesh. Triangles
+// with an index out of range or a non-finite coordinate are not written;
+// the lowest such triangle is reported in first_bad.
+PrepareSummary prepare_triangles(const TriangleView& mesh, size_t first, size_t last, PrimRef* out);
+
+// The same for caller-given primitive boxes (any primitive type). A box with
+// a non-finite coordinate or lo > hi on some axis is rejected.
+PrepareSummary prepare_boxes(std::span<const Box> boxes, size_t first, size_t last, PrimRef* out);
+
+// Throws InputError describing what is wrong with triangle / box `index`.
+[[noreturn]] void throw_bad_triangle(const TriangleView& mesh, size_t index);
+[[noreturn]] void throw_bad_box(std::span<const Box> boxes, size_t index);
+
+// Throws InputError when the count exceeds kMaxPrimitives, or the index
+// array is not a multiple of 3.
+void check_triangle_input(const TriangleView& mesh);
+void check_box_input(std::span<const Box> boxes);
+
+}  // namespace canopy
