@@ -40,18 +40,16 @@ struct BuildState {
     const TriangleView* mesh = nullptr;  // one of mesh / boxes is the input
     std::span<const Box> boxes;
 
-    RawArray<PrimRef> refs;
-    RawArray<uint32_t> scratch;
-    Bvh bvh;  // bvh.permutation is the id array the kernel partitions
+    RawArray<PrimRef> refs;     // partitioned in place by the kernel
+    RawArray<PrimRef> scratch;  // the one scratch array of the partition
+    Bvh bvh;
     NodeTask root;
     BuildStats stats;
 
-    KernelContext context() { return {refs.get(), bvh.permutation.data(), scratch.get(), &options}; }
+    KernelContext context() { return {refs.get(), scratch.get(), &options}; }
 
-    // Computes refs[first, last) and sets ids[first, last) to the identity.
+    // Computes refs[first, last) from primitives first..last-1.
     PrepareSummary prepare_range(size_t first, size_t last) {
-        uint32_t* ids = bvh.permutation.data();
-        for (size_t i = first; i < last; ++i) ids[i] = static_cast<uint32_t>(i);
         return mesh ? prepare_triangles(*mesh, first, last, refs.get())
                     : prepare_boxes(boxes, first, last, refs.get());
     }
@@ -66,6 +64,12 @@ struct BuildState {
         root.end = n;
         root.bounds = s.bounds;
         root.cbounds = s.cbounds;
+    }
+    // Writes the ids of refs[first, last) to the permutation.
+    void extract_ids(size_t first, size_t last) {
+        const PrimRef* r = refs.get();
+        uint32_t* out = bvh.permutation.data();
+        for (size_t i = first; i < last; ++i) out[i] = r[i].id;
     }
 };
 

@@ -17,6 +17,9 @@
 #include <bit>
 #include <cstdint>
 #include <cstring>
+#include <limits>
+
+#include <emmintrin.h>
 
 namespace canopy {
 
@@ -65,13 +68,58 @@ inline uint32_t bins_for(uint32_t n, uint32_t bins) {
     return std::max(kMinBins, std::min(bins, std::max(4u, half)));
 }
 
-// Maps a centroid coordinate to its bin. The one mapping used by both bin()
-// and partition(), so the partition agrees with the counts evaluated.
+// SSE2 helpers. A PrimRef loads as two 4-lane vectors: (lo, id) and
+// (hi, pad). Lane 3 is cleared before any arithmetic, so the id's bits are
+// never used as a float (they would be subnormal and slow, and meaningless).
+namespace simd {
+inline __m128 xyz_mask() { return _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1)); }
+inline __m128 lo(const PrimRef& r) { return _mm_and_ps(_mm_load_ps(&r.lo.x), xyz_mask()); }
+inline __m128 hi(const PrimRef& r) { return _mm_and_ps(_mm_load_ps(&r.hi.x), xyz_mask()); }
+// The centroid, lane for lane the same IEEE operations as centroid().
+inline __m128 centroid(__m128 lo, __m128 hi) {
+    const __m128 half = _mm_set1_ps(0.5f);
+    return _mm_add_ps(_mm_add_ps(_mm_mul_ps(lo, half), _mm_mul_ps(hi, half)), _mm_setzero_ps());
+}
+inline __m128 vec(const Vec3& v) { return _mm_set_ps(0.0f, v.z, v.y, v.x); }
+inline Vec3 vec3(__m128 v) {
+    alignas(16) float f[4];
+    _mm_store_ps(f, v);
+    return {f[0], f[1], f[2]};
+}
+inline __m128 pos_inf() { return _mm_set1_ps(std::numeric_limits<float>::infinity()); }
+inline __m128 neg_inf() { return _mm_set1_ps(-std::numeric_limits<float>::infinity()); }
+
+// A box as two vectors, for accumulation in the hot loops.
+struct Box4 {
+    __m128 lo = pos_inf();
+    __m128 hi = neg_inf();
+    void grow(__m128 l, __m128 h) {
+        lo = _mm_min_ps(lo, l);
+        hi = _mm_max_ps(hi, h);
+    }
+    void grow(const Box4& b) { grow(b.lo, b.hi); }
+    Box box() const { return Box{vec3(lo), vec3(hi)}; }
+};
+
+// Half area (or, with use_length, the sum of extents) of a box, in double.
+inline double measure(const Box4& b, bool use_length) {
+    const __m128d lxy = _mm_cvtps_pd(b.lo), hxy = _mm_cvtps_pd(b.hi);
+    const __m128d lz = _mm_cvtps_pd(_mm_movehl_ps(b.lo, b.lo)), hz = _mm_cvtps_pd(_mm_movehl_ps(b.hi, b.hi));
+    const __m128d dxy = _mm_sub_pd(hxy, lxy);
+    const double dz = _mm_cvtsd_f64(_mm_sub_pd(hz, lz));
+    const double dx = _mm_cvtsd_f64(dxy), dy = _mm_cvtsd_f64(_mm_unpackhi_pd(dxy, dxy));
+    return use_length ? dx + dy + dz : dx * dy + dy * dz + dz * dx;
+}
+}  // namespace simd
+
+// Maps a centroid to its bin on each axis. The one mapping used by both
+// bin() and partition(), so the partition agrees with the counts evaluated.
 struct BinMapper {
     Vec3 origin{0.0f};
-    Vec3 scale{0.0f};
+    Vec3 scale{0.0f};  // 0 on axes that are not valid
     uint32_t bins = 0;
     std::array<bool, 3> valid{false, false, false};  // axis can be split
+    __m128 origin4 = _mm_setzero_ps(), scale4 = _mm_setzero_ps(), last4 = _mm_setzero_ps();
 
     // scale = 0.99 * bins / extent (Embree's safe scale): the largest
     // centroid falls inside the last bin. An axis is skipped when its extent
@@ -81,35 +129,46 @@ struct BinMapper {
         BinMapper m;
         m.origin = cbounds.lo;
         m.bins = bins;
+        m.origin4 = simd::vec(m.origin);
+        m.last4 = _mm_set1_ps(float(bins - 1));
         for (int a = 0; a < 3; ++a) {
             const double ext = cbounds.extent(a);
             if (!(ext > 0.0)) continue;
-            const double s = 0.99 * double(bins) / ext;
-            const float sf = static_cast<float>(s);
+            const float sf = static_cast<float>(0.99 * double(bins) / ext);
             if (!std::isfinite(sf) || !(sf > 0.0f)) continue;
             m.scale[a] = sf;
-            m.valid[a] = m.index(cbounds.hi[a], a) > 0;
+            m.scale4 = simd::vec(m.scale);
+            m.valid[a] = m.indices(simd::vec(cbounds.hi))[a] > 0;
             if (!m.valid[a]) m.scale[a] = 0.0f;
         }
+        m.scale4 = simd::vec(m.scale);
         return m;
     }
     bool any_valid() const { return valid[0] || valid[1] || valid[2]; }
+    int valid_count() const { return valid[0] + valid[1] + valid[2]; }
 
-    uint32_t index(float c, int axis) const {
-        float f = (c - origin[axis]) * scale[axis];
-        f = std::min(std::max(f, 0.0f), float(bins - 1));
-        return static_cast<uint32_t>(f);
+    // The bin of a centroid on each axis: floor of (c - origin) * scale,
+    // clamped to [0, bins - 1] before the conversion (so no out-of-range
+    // float-to-int conversion can happen, even for an infinite product).
+    std::array<int32_t, 4> indices(__m128 c) const {
+        __m128 f = _mm_mul_ps(_mm_sub_ps(c, origin4), scale4);
+        f = _mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), last4);
+        alignas(16) std::array<int32_t, 4> k;
+        _mm_store_si128(reinterpret_cast<__m128i*>(k.data()), _mm_cvttps_epi32(f));
+        return k;
     }
+    uint32_t index(const Vec3& c, int axis) const { return static_cast<uint32_t>(indices(simd::vec(c))[axis]); }
 };
 
 // Per-axis bins: the box of the primitives and their count.
 struct BinSet {
-    Box box[3][kMaxBins];
+    simd::Box4 box4[3][kMaxBins];
     uint32_t count[3][kMaxBins];
 
+    Box box(int axis, uint32_t b) const { return box4[axis][b].box(); }
     void clear(uint32_t bins) {
         for (int a = 0; a < 3; ++a) {
-            std::fill_n(box[a], bins, Box{});
+            std::fill_n(box4[a], bins, simd::Box4{});
             std::fill_n(count[a], bins, 0u);
         }
     }
@@ -117,25 +176,26 @@ struct BinSet {
     void merge(const BinSet& o, uint32_t bins) {
         for (int a = 0; a < 3; ++a)
             for (uint32_t b = 0; b < bins; ++b) {
-                box[a][b].extend(o.box[a][b]);
+                box4[a][b].grow(o.box4[a][b]);
                 count[a][b] += o.count[a][b];
             }
     }
 };
 
-// Step 1: bin the centroids of ids[begin, end) on every valid axis, in one
-// pass. Accumulates into `out` (clear it first).
-inline void bin(const PrimRef* refs, const uint32_t* ids, uint32_t begin, uint32_t end,
-                const BinMapper& m, BinSet& out) {
+// Step 1: bin the centroids of refs[begin, end) on every valid axis, in one
+// pass; axes that are not valid are not binned. Accumulates into `out`
+// (clear it first).
+inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
+    int axes[3], na = 0;
+    for (int a = 0; a < 3; ++a)
+        if (m.valid[a]) axes[na++] = a;
     for (uint32_t i = begin; i < end; ++i) {
-        const PrimRef& r = refs[ids[i]];
-        for (int a = 0; a < 3; ++a) {
-            if (!m.valid[a]) continue;
-            const uint32_t k = m.index(r.c[a], a);
-            Box& b = out.box[a][k];
-            b.lo = glm::min(b.lo, r.lo);
-            b.hi = glm::max(b.hi, r.hi);
-            out.count[a][k]++;
+        const __m128 lo = simd::lo(refs[i]), hi = simd::hi(refs[i]);
+        const auto k = m.indices(simd::centroid(lo, hi));
+        for (int j = 0; j < na; ++j) {
+            const int a = axes[j];
+            out.box4[a][k[a]].grow(lo, hi);
+            out.count[a][k[a]]++;
         }
     }
 }
@@ -157,35 +217,34 @@ inline double area_measure(const Box& b, bool use_length) {
     return use_length ? b.extent(0) + b.extent(1) + b.extent(2) : b.half_area();
 }
 
-// Step 2: evaluate the bins-1 partitions on every valid axis by a prefix
-// sweep (left areas) and a suffix sweep (right areas). Ties go to the lowest
-// axis, then the lowest split index.
+// Step 2: evaluate the bins-1 partitions on every valid axis by a suffix
+// sweep (right areas) and a prefix sweep (left areas), in double. Ties go to
+// the lowest axis, then the lowest split index.
 inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
                       const BuildOptions& opt) {
     Split best;
-    bool use_length = !(node_bounds.half_area() > 0.0);
+    const bool use_length = !(node_bounds.half_area() > 0.0);
     const double parent = area_measure(node_bounds, use_length);
     if (!(parent > 0.0)) return best;
     const uint32_t nb = m.bins;
+    const double ct = opt.traversal_cost, ci_over_parent = opt.intersection_cost / parent;
     double right_cost[kMaxBins];
     for (int a = 0; a < 3; ++a) {
         if (!m.valid[a]) continue;
-        Box acc;
+        simd::Box4 acc;
         uint32_t n = 0;
         for (uint32_t b = nb - 1; b > 0; --b) {
-            acc.extend(bins.box[a][b]);
+            acc.grow(bins.box4[a][b]);
             n += bins.count[a][b];
-            right_cost[b] = n ? area_measure(acc, use_length) * double(n) : -1.0;
+            right_cost[b] = n ? simd::measure(acc, use_length) * double(n) : -1.0;
         }
-        acc = Box{};
+        acc = simd::Box4{};
         n = 0;
         for (uint32_t s = 1; s < nb; ++s) {
-            acc.extend(bins.box[a][s - 1]);
+            acc.grow(bins.box4[a][s - 1]);
             n += bins.count[a][s - 1];
             if (n == 0 || right_cost[s] < 0.0) continue;
-            const double cost = opt.traversal_cost +
-                                opt.intersection_cost * (area_measure(acc, use_length) * double(n) +
-                                                         right_cost[s]) / parent;
+            const double cost = ct + ci_over_parent * (simd::measure(acc, use_length) * double(n) + right_cost[s]);
             if (!best.found() || cost < best.cost) {
                 best.axis = a;
                 best.index = s;
@@ -211,88 +270,102 @@ struct PartitionResult {
     }
 };
 
+// Child bounds and centroid bounds, accumulated while partitioning.
+struct ChildBounds4 {
+    simd::Box4 bounds[2], cbounds[2];  // [0] left, [1] right
+    void add(int side, __m128 lo, __m128 hi, __m128 c) {
+        bounds[side].grow(lo, hi);
+        cbounds[side].grow(c, c);
+    }
+    void into(PartitionResult& r) const {
+        r.left_bounds = bounds[0].box();
+        r.right_bounds = bounds[1].box();
+        r.left_cbounds = cbounds[0].box();
+        r.right_cbounds = cbounds[1].box();
+    }
+};
+
 inline bool goes_left(const PrimRef& r, const BinMapper& m, const Split& s) {
-    return m.index(r.c[s.axis], s.axis) < s.index;
+    return uint32_t(m.indices(simd::centroid(simd::lo(r), simd::hi(r)))[s.axis]) < s.index;
 }
 
-inline void grow(Box& bounds, Box& cbounds, const PrimRef& r) {
-    bounds.lo = glm::min(bounds.lo, r.lo);
-    bounds.hi = glm::max(bounds.hi, r.hi);
-    cbounds.extend(r.c);
-}
-
-// Step 3: the stable partition of ids[begin, end) around the split, with
-// scratch[begin, end) as the one scratch id array. Child bounds are
+// Step 3: the stable partition of refs[begin, end) around the split, with
+// scratch[begin, end) as the one scratch array. Child bounds are
 // accumulated in the same pass.
-inline PartitionResult partition(const PrimRef* refs, uint32_t* ids, uint32_t* scratch,
-                                 uint32_t begin, uint32_t end, const BinMapper& m,
-                                 const Split& s) {
-    PartitionResult res;
+inline PartitionResult partition(PrimRef* refs, PrimRef* scratch, uint32_t begin, uint32_t end,
+                                 const BinMapper& m, const Split& s) {
+    ChildBounds4 acc;
     uint32_t nl = begin, nr = begin;
     for (uint32_t i = begin; i < end; ++i) {
-        const uint32_t id = ids[i];
-        const PrimRef& r = refs[id];
-        const bool left = goes_left(r, m, s);
-        ids[nl] = id;  // nl <= i: never overwrites an unread id
-        scratch[nr] = id;
+        const PrimRef r = refs[i];
+        const __m128 lo = simd::lo(r), hi = simd::hi(r), c = simd::centroid(lo, hi);
+        const bool left = uint32_t(m.indices(c)[s.axis]) < s.index;
+        refs[nl] = r;  // nl <= i: never overwrites an unread record
+        scratch[nr] = r;
         nl += left;
         nr += !left;
-        if (left)
-            grow(res.left_bounds, res.left_cbounds, r);
-        else
-            grow(res.right_bounds, res.right_cbounds, r);
+        acc.add(!left, lo, hi, c);
     }
-    std::memcpy(ids + nl, scratch + begin, size_t(nr - begin) * sizeof(uint32_t));
+    std::memcpy(static_cast<void*>(refs + nl), scratch + begin, size_t(nr - begin) * sizeof(PrimRef));
+    PartitionResult res;
+    acc.into(res);
     res.mid = nl;
     return res;
 }
 
-// Blocked pieces of the same partition, for parallel schedulers. A block is
-// a fixed-size range (kPartitionBlock, independent of the thread count).
+// Blocked pieces of the same partition, for parallel schedulers. Any block
+// size gives the same result (the stable partition is unique).
 inline constexpr uint32_t kPartitionBlock = 16384;
 
-// Counts the left-going primitives of ids[b, e) and accumulates the child
+// Counts the left-going primitives of refs[b, e) and accumulates the child
 // bounds (res.mid holds the left count).
-inline PartitionResult partition_count(const PrimRef* refs, const uint32_t* ids, uint32_t b,
-                                       uint32_t e, const BinMapper& m, const Split& s) {
-    PartitionResult res;
+inline PartitionResult partition_count(const PrimRef* refs, uint32_t b, uint32_t e,
+                                       const BinMapper& m, const Split& s) {
+    ChildBounds4 acc;
     uint32_t nl = 0;
     for (uint32_t i = b; i < e; ++i) {
-        const PrimRef& r = refs[ids[i]];
-        if (goes_left(r, m, s)) {
-            ++nl;
-            grow(res.left_bounds, res.left_cbounds, r);
-        } else {
-            grow(res.right_bounds, res.right_cbounds, r);
-        }
+        const __m128 lo = simd::lo(refs[i]), hi = simd::hi(refs[i]), c = simd::centroid(lo, hi);
+        const bool left = uint32_t(m.indices(c)[s.axis]) < s.index;
+        nl += left;
+        acc.add(!left, lo, hi, c);
     }
+    PartitionResult res;
+    acc.into(res);
     res.mid = nl;
     return res;
 }
 
-// Writes the ids of ids[b, e) in order: left-going ones from left_out on,
-// right-going ones from right_out on.
-inline void partition_scatter(const PrimRef* refs, const uint32_t* ids, uint32_t b, uint32_t e,
-                              const BinMapper& m, const Split& s, uint32_t* left_out,
-                              uint32_t* right_out) {
+// Copies the records of refs[b, e) in order: left-going ones from left_out
+// on, right-going ones from right_out on.
+inline void partition_scatter(const PrimRef* refs, uint32_t b, uint32_t e, const BinMapper& m,
+                              const Split& s, PrimRef* left_out, PrimRef* right_out) {
     for (uint32_t i = b; i < e; ++i) {
-        const uint32_t id = ids[i];
-        const bool left = goes_left(refs[id], m, s);
-        *left_out = id;
-        *right_out = id;
-        left_out += left;
-        right_out += !left;
+        const PrimRef& r = refs[i];
+        if (goes_left(r, m, s))
+            *left_out++ = r;
+        else
+            *right_out++ = r;
+    }
+}
+
+// Bounds of refs[b, e) as one side of a middle split.
+inline void grow_range(const PrimRef* refs, uint32_t b, uint32_t e, ChildBounds4& acc, int side) {
+    for (uint32_t i = b; i < e; ++i) {
+        const __m128 lo = simd::lo(refs[i]), hi = simd::hi(refs[i]);
+        acc.add(side, lo, hi, simd::centroid(lo, hi));
     }
 }
 
 // The middle split: [begin, mid) and [mid, end) in their current order, for
 // nodes with no SAH split and for the depth cap. Bounds by one pass.
-inline PartitionResult middle_split(const PrimRef* refs, const uint32_t* ids, uint32_t begin,
-                                    uint32_t end) {
+inline PartitionResult middle_split(const PrimRef* refs, uint32_t begin, uint32_t end) {
+    ChildBounds4 acc;
+    const uint32_t mid = begin + (end - begin) / 2;
+    grow_range(refs, begin, mid, acc, 0);
+    grow_range(refs, mid, end, acc, 1);
     PartitionResult res;
-    res.mid = begin + (end - begin) / 2;
-    for (uint32_t i = begin; i < res.mid; ++i) grow(res.left_bounds, res.left_cbounds, refs[ids[i]]);
-    for (uint32_t i = res.mid; i < end; ++i) grow(res.right_bounds, res.right_cbounds, refs[ids[i]]);
+    acc.into(res);
+    res.mid = mid;
     return res;
 }
 
@@ -343,9 +416,8 @@ inline bool sah_says_leaf(const Split& s, uint32_t n, const BuildOptions& opt) {
 
 // Everything a node task needs besides its own range.
 struct KernelContext {
-    const PrimRef* refs;
-    uint32_t* ids;
-    uint32_t* scratch;
+    PrimRef* refs;
+    PrimRef* scratch;
     const BuildOptions* options;
 };
 
@@ -358,23 +430,23 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     if (p == Plan::Leaf) return false;
     PartitionResult part;
     if (p == Plan::Middle) {
-        part = middle_split(ctx.refs, ctx.ids, t.begin, t.end);
+        part = middle_split(ctx.refs, t.begin, t.end);
     } else {
         const BinMapper m = BinMapper::make(t.cbounds, bins_for(t.size(), opt.bins));
         if (!m.any_valid()) {
             ++skip.coincident_nodes;
             if (t.size() <= opt.max_leaf) return false;
-            part = middle_split(ctx.refs, ctx.ids, t.begin, t.end);
+            part = middle_split(ctx.refs, t.begin, t.end);
         } else {
             skip.axes_not_binned += 3 - (m.valid[0] + m.valid[1] + m.valid[2]);
             bins.clear(m.bins);
-            bin(ctx.refs, ctx.ids, t.begin, t.end, m, bins);
+            bin(ctx.refs, t.begin, t.end, m, bins);
             const Split s = evaluate(bins, m, t.bounds, opt);
             if (sah_says_leaf(s, t.size(), opt)) return false;
             if (s.found())
-                part = partition(ctx.refs, ctx.ids, ctx.scratch, t.begin, t.end, m, s);
+                part = partition(ctx.refs, ctx.scratch, t.begin, t.end, m, s);
             else
-                part = middle_split(ctx.refs, ctx.ids, t.begin, t.end);
+                part = middle_split(ctx.refs, t.begin, t.end);
         }
     }
     emit(t, part, children);

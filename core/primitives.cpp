@@ -14,21 +14,14 @@ bool finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && 
 
 Vec3 canonical(const Vec3& v) { return {canonical_zero(v.x), canonical_zero(v.y), canonical_zero(v.z)}; }
 
-// The centre of [lo, hi], computed in double so that it neither overflows
-// (lo + hi at +-FLT_MAX) nor leaves the box through underflow.
-Vec3 centre(const Vec3& lo, const Vec3& hi) {
-    Vec3 c;
-    for (int a = 0; a < 3; ++a) c[a] = static_cast<float>((double(lo[a]) + double(hi[a])) * 0.5);
-    return canonical(c);
-}
-
-void record(PrimRef& r, PrepareSummary& s, const Vec3& lo, const Vec3& hi) {
+void record(PrimRef& r, PrepareSummary& s, const Vec3& lo, const Vec3& hi, size_t id) {
     r.lo = canonical(lo);
     r.hi = canonical(hi);
-    r.c = centre(r.lo, r.hi);
+    r.id = static_cast<uint32_t>(id);
+    r.pad = 0;
     s.bounds.lo = glm::min(s.bounds.lo, r.lo);
     s.bounds.hi = glm::max(s.bounds.hi, r.hi);
-    s.cbounds.extend(r.c);
+    s.cbounds.extend(centroid(r));
 }
 
 std::string vec_str(const Vec3& v) {
@@ -72,7 +65,7 @@ PrepareSummary prepare_triangles(const TriangleView& mesh, size_t first, size_t 
             if (s.first_bad == PrepareSummary::kNone) s.first_bad = t;
             continue;
         }
-        record(out[t], s, lo, hi);
+        record(out[t], s, lo, hi, t);
     }
     return s;
 }
@@ -85,7 +78,7 @@ PrepareSummary prepare_boxes(std::span<const Box> boxes, size_t first, size_t la
             if (s.first_bad == PrepareSummary::kNone) s.first_bad = i;
             continue;
         }
-        record(out[i], s, b.lo, b.hi);
+        record(out[i], s, b.lo, b.hi, i);
     }
     return s;
 }

@@ -13,15 +13,23 @@
 
 namespace canopy {
 
-// One record per input primitive, indexed by its (uint32) id: its box and
-// the centre of that box (the "centroid" the bins are built over). 36 bytes,
-// read in one go by binning and partitioning. -0 is stored as +0.
-struct PrimRef {
+// One 32-byte record per input primitive: its box and its (uint32) id. The
+// kernel partitions these records themselves, so every node streams through
+// a contiguous range of them. -0 is stored as +0. The id sits in its own
+// integer field, never in a float lane that arithmetic touches.
+struct alignas(16) PrimRef {
     Vec3 lo;
+    uint32_t id;
     Vec3 hi;
-    Vec3 c;
+    uint32_t pad;
 };
-static_assert(sizeof(PrimRef) == 36);
+static_assert(sizeof(PrimRef) == 32);
+
+// The centroid the bins are built over: the centre of the primitive's box,
+// as 0.5 * lo + 0.5 * hi, which cannot overflow for any finite float box
+// (+ 0 turns a -0 from underflowing negative halves into +0). This one
+// function defines it for prepare, bin and partition alike.
+inline Vec3 centroid(const PrimRef& r) { return r.lo * 0.5f + r.hi * 0.5f + 0.0f; }
 
 // What a range of primitives produced: the union of their boxes and of their
 // centroids, and the first primitive (lowest index) that was rejected.

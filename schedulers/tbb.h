@@ -1,0 +1,79 @@
+// canopy scheduler: oneTBB work stealing.
+//
+// The build runs in its own task_arena limited to the thread bound, so a
+// build called from inside a user's TBB parallel region does not
+// oversubscribe. Each split node above the task cutoff hands its two
+// children to parallel_invoke; smaller subtrees run inline, depth-first.
+// Big nodes near the root are binned and partitioned with parallel_for.
+#pragma once
+
+#include "common.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
+#include <tbb/task_arena.h>
+
+namespace canopy {
+
+struct Tbb {
+    static constexpr const char* name = "tbb";
+
+    static void run(BuildState& st) {
+        const uint32_t threads = sched::useful_threads(st.n, st.threads);
+        if (threads == 1) return Sequential::run(st);
+        st.stats.threads_used = threads;
+        tbb::task_arena arena(static_cast<int>(threads));
+        arena.execute([&] {
+            auto for_each = [](uint32_t k, auto&& fn) {
+                tbb::parallel_for(tbb::blocked_range<uint32_t>(0, k, 1), [&](const tbb::blocked_range<uint32_t>& r) {
+                    for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
+                });
+            };
+            sched::prepare_parallel(st, for_each);
+            // Slots are indexed by the arena's thread index, unique per thread.
+            sched::Workers workers(static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
+            Builder b{st.context(), st.n, threads, workers};
+            b.task(st.root);
+            sched::finish_parallel(st, workers, for_each);
+        });
+    }
+
+private:
+    struct Builder {
+        KernelContext ctx;
+        uint32_t n, threads;
+        sched::Workers& workers;
+
+        sched::Worker& me() { return workers[static_cast<size_t>(tbb::this_task_arena::current_thread_index())]; }
+
+        void task(const NodeTask& t) {
+            if (t.size() < sched::kTaskCutoff) {
+                ++me().skip.inline_tasks;
+                sched::run_subtree(ctx, t, me());
+                return;
+            }
+            NodeTask children[2];
+            bool split;
+            if (sched::team_parallel(t.size(), n, threads)) {
+                ParallelNode pn(ctx, t);
+                split = run_parallel_node(
+                    pn, children, me().skip,
+                    [](uint32_t k, auto&& fn) {
+                        tbb::parallel_for(tbb::blocked_range<uint32_t>(0, k, 1),
+                                          [&](const tbb::blocked_range<uint32_t>& r) {
+                                              for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
+                                          });
+                    },
+                    [](auto&& fn) { fn(); });
+                me().records.push_back(NodeRecord::of(t, !split));
+            } else {
+                split = sched::run_recorded(ctx, t, children, me());
+            }
+            if (!split) return;
+            tbb::parallel_invoke([&] { task(children[0]); }, [&] { task(children[1]); });
+        }
+    };
+};
+
+}  // namespace canopy
