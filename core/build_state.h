@@ -40,13 +40,13 @@ struct BuildState {
     const TriangleView* mesh = nullptr;  // one of mesh / boxes is the input
     std::span<const Box> boxes;
 
-    RawArray<PrimRef> refs;     // partitioned in place by the kernel
-    RawArray<PrimRef> scratch;  // the one scratch array of the partition
+    RawArray<PrimRef> refs;     // the records (buffer 0)
+    RawArray<PrimRef> scratch;  // the partition's second buffer (buffer 1)
     Bvh bvh;
     NodeTask root;
     BuildStats stats;
 
-    KernelContext context() { return {refs.get(), scratch.get(), &options}; }
+    KernelContext context() { return {{refs.get(), scratch.get()}, bvh.permutation.data(), &options}; }
 
     // Computes refs[first, last) from primitives first..last-1.
     PrepareSummary prepare_range(size_t first, size_t last) {
@@ -64,12 +64,6 @@ struct BuildState {
         root.end = n;
         root.bounds = s.bounds;
         root.cbounds = s.cbounds;
-    }
-    // Writes the ids of refs[first, last) to the permutation.
-    void extract_ids(size_t first, size_t last) {
-        const PrimRef* r = refs.get();
-        uint32_t* out = bvh.permutation.data();
-        for (size_t i = first; i < last; ++i) out[i] = r[i].id;
     }
 };
 

@@ -6,6 +6,12 @@
 // going left keep their relative order, followed by those going right in
 // their relative order. It is unique, so a parallel blocked partition
 // (count per block, prefix sum, scatter) reproduces it bit for bit.
+//
+// Records live in two buffers of the same size. A partition reads a node's
+// range from one buffer and writes it, partitioned, to the same range of the
+// other (one read and one write per record, no copy back); each task knows
+// which buffer holds its range. A leaf writes its primitive ids straight to
+// the permutation.
 #pragma once
 
 #include "geometry.h"
@@ -36,6 +42,7 @@ struct NodeTask {
     uint32_t parent_begin = 0;
     uint8_t rights = 0;
     bool is_right = false;
+    uint8_t buffer = 0;  // which of the two record buffers holds the range
 
     uint32_t size() const { return end - begin; }
 };
@@ -101,15 +108,37 @@ struct Box4 {
     Box box() const { return Box{vec3(lo), vec3(hi)}; }
 };
 
-// Half area (or, with use_length, the sum of extents) of a box, in double.
-inline double measure(const Box4& b, bool use_length) {
-    const __m128d lxy = _mm_cvtps_pd(b.lo), hxy = _mm_cvtps_pd(b.hi);
-    const __m128d lz = _mm_cvtps_pd(_mm_movehl_ps(b.lo, b.lo)), hz = _mm_cvtps_pd(_mm_movehl_ps(b.hi, b.hi));
-    const __m128d dxy = _mm_sub_pd(hxy, lxy);
-    const double dz = _mm_cvtsd_f64(_mm_sub_pd(hz, lz));
-    const double dx = _mm_cvtsd_f64(dxy), dy = _mm_cvtsd_f64(_mm_unpackhi_pd(dxy, dxy));
-    return use_length ? dx + dy + dz : dx * dy + dy * dz + dz * dx;
-}
+// The SAH measure of boxes inside one node, in float without overflow or
+// loss: every box is scaled by the same power of two, 2^-e with 2^e at least
+// the node's largest extent, so scaled extents are at most 1 and the
+// measure at most 3 (a power-of-two scale is exact for normal results, and
+// the same factor for every candidate keeps their ranking). Half area, or
+// with use_length (a node of zero area) the sum of extents.
+struct Measure {
+    __m128 scale;
+    bool use_length;
+    Measure(const Box& node, bool length) : use_length(length) {
+        const double ext = std::max({node.extent(0), node.extent(1), node.extent(2)});
+        // e = floor(log2(ext)) + 1 from the double's exponent field, so
+        // ext < 2^e; the scale 2^-e is built from its bits (1 <= 127 - e <= 253
+        // keeps it a normal float).
+        const int e = int((std::bit_cast<uint64_t>(ext) >> 52) & 0x7FF) - 1022;
+        const int biased = std::clamp(127 - e, 1, 253);
+        scale = _mm_set1_ps(std::bit_cast<float>(uint32_t(biased) << 23));
+    }
+    float operator()(const Box4& b) const {
+        const __m128 d = _mm_sub_ps(_mm_mul_ps(b.hi, scale), _mm_mul_ps(b.lo, scale));
+        alignas(16) float f[4];
+        if (use_length) {
+            _mm_store_ps(f, d);
+            return f[0] + f[1] + f[2];
+        }
+        // (dx, dy, dz) * (dy, dz, dx) = (dx dy, dy dz, dz dx)
+        const __m128 p = _mm_mul_ps(d, _mm_shuffle_ps(d, d, _MM_SHUFFLE(3, 0, 2, 1)));
+        _mm_store_ps(f, p);
+        return f[0] + f[1] + f[2];
+    }
+};
 }  // namespace simd
 
 // Maps a centroid to its bin on each axis. The one mapping used by both
@@ -135,10 +164,12 @@ struct BinMapper {
             const double ext = cbounds.extent(a);
             if (!(ext > 0.0)) continue;
             const float sf = static_cast<float>(0.99 * double(bins) / ext);
-            if (!std::isfinite(sf) || !(sf > 0.0f)) continue;
-            m.scale[a] = sf;
-            m.scale4 = simd::vec(m.scale);
-            m.valid[a] = m.indices(simd::vec(cbounds.hi))[a] > 0;
+            if (std::isfinite(sf) && sf > 0.0f) m.scale[a] = sf;
+        }
+        m.scale4 = simd::vec(m.scale);
+        const auto top = m.indices(simd::vec(cbounds.hi));
+        for (int a = 0; a < 3; ++a) {
+            m.valid[a] = m.scale[a] > 0.0f && top[a] > 0;
             if (!m.valid[a]) m.scale[a] = 0.0f;
         }
         m.scale4 = simd::vec(m.scale);
@@ -150,11 +181,14 @@ struct BinMapper {
     // The bin of a centroid on each axis: floor of (c - origin) * scale,
     // clamped to [0, bins - 1] before the conversion (so no out-of-range
     // float-to-int conversion can happen, even for an infinite product).
-    std::array<int32_t, 4> indices(__m128 c) const {
+    __m128i indices4(__m128 c) const {
         __m128 f = _mm_mul_ps(_mm_sub_ps(c, origin4), scale4);
         f = _mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), last4);
+        return _mm_cvttps_epi32(f);
+    }
+    std::array<int32_t, 4> indices(__m128 c) const {
         alignas(16) std::array<int32_t, 4> k;
-        _mm_store_si128(reinterpret_cast<__m128i*>(k.data()), _mm_cvttps_epi32(f));
+        _mm_store_si128(reinterpret_cast<__m128i*>(k.data()), indices4(c));
         return k;
     }
     uint32_t index(const Vec3& c, int axis) const { return static_cast<uint32_t>(indices(simd::vec(c))[axis]); }
@@ -186,6 +220,24 @@ struct BinSet {
 // pass; axes that are not valid are not binned. Accumulates into `out`
 // (clear it first).
 inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
+    if (m.valid_count() == 3) {
+        // The common case, unrolled. Neighbouring primitives often fall in
+        // the same bin; the three axes' updates are independent chains.
+        for (uint32_t i = begin; i < end; ++i) {
+            const __m128 lo = simd::lo(refs[i]), hi = simd::hi(refs[i]);
+            const __m128i k = m.indices4(simd::centroid(lo, hi));
+            const int k0 = _mm_cvtsi128_si32(k);
+            const int k1 = _mm_cvtsi128_si32(_mm_shuffle_epi32(k, 0x55));
+            const int k2 = _mm_cvtsi128_si32(_mm_shuffle_epi32(k, 0xAA));
+            out.box4[0][k0].grow(lo, hi);
+            out.box4[1][k1].grow(lo, hi);
+            out.box4[2][k2].grow(lo, hi);
+            out.count[0][k0]++;
+            out.count[1][k1]++;
+            out.count[2][k2]++;
+        }
+        return;
+    }
     int axes[3], na = 0;
     for (int a = 0; a < 3; ++a)
         if (m.valid[a]) axes[na++] = a;
@@ -218,17 +270,20 @@ inline double area_measure(const Box& b, bool use_length) {
 }
 
 // Step 2: evaluate the bins-1 partitions on every valid axis by a suffix
-// sweep (right areas) and a prefix sweep (left areas), in double. Ties go to
-// the lowest axis, then the lowest split index.
+// sweep (right areas) and a prefix sweep (left areas). Ties go to the lowest
+// axis, then the lowest split index.
 inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
                       const BuildOptions& opt) {
     Split best;
     const bool use_length = !(node_bounds.half_area() > 0.0);
-    const double parent = area_measure(node_bounds, use_length);
-    if (!(parent > 0.0)) return best;
+    const simd::Measure measure(node_bounds, use_length);
+    simd::Box4 node4;
+    node4.grow(simd::vec(node_bounds.lo), simd::vec(node_bounds.hi));
+    const float parent = measure(node4);
+    if (!(parent > 0.0f)) return best;
     const uint32_t nb = m.bins;
-    const double ct = opt.traversal_cost, ci_over_parent = opt.intersection_cost / parent;
-    double right_cost[kMaxBins];
+    float right_cost[kMaxBins];
+    float best_sum = 0.0f;  // A_L n_L + A_R n_R of the best split
     for (int a = 0; a < 3; ++a) {
         if (!m.valid[a]) continue;
         simd::Box4 acc;
@@ -236,23 +291,25 @@ inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bo
         for (uint32_t b = nb - 1; b > 0; --b) {
             acc.grow(bins.box4[a][b]);
             n += bins.count[a][b];
-            right_cost[b] = n ? simd::measure(acc, use_length) * double(n) : -1.0;
+            right_cost[b] = n ? measure(acc) * float(n) : -1.0f;
         }
         acc = simd::Box4{};
         n = 0;
         for (uint32_t s = 1; s < nb; ++s) {
             acc.grow(bins.box4[a][s - 1]);
             n += bins.count[a][s - 1];
-            if (n == 0 || right_cost[s] < 0.0) continue;
-            const double cost = ct + ci_over_parent * (simd::measure(acc, use_length) * double(n) + right_cost[s]);
-            if (!best.found() || cost < best.cost) {
+            if (n == 0 || right_cost[s] < 0.0f) continue;
+            const float sum = measure(acc) * float(n) + right_cost[s];
+            if (!best.found() || sum < best_sum) {
                 best.axis = a;
                 best.index = s;
-                best.cost = cost;
                 best.left_count = n;
+                best_sum = sum;
             }
         }
     }
+    if (best.found())
+        best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(best_sum) / double(parent);
     return best;
 }
 
@@ -289,27 +346,35 @@ inline bool goes_left(const PrimRef& r, const BinMapper& m, const Split& s) {
     return uint32_t(m.indices(simd::centroid(simd::lo(r), simd::hi(r)))[s.axis]) < s.index;
 }
 
-// Step 3: the stable partition of refs[begin, end) around the split, with
-// scratch[begin, end) as the one scratch array. Child bounds are
+// Step 3: the stable partition of src[begin, end) around the split,
+// written to dst[begin, end): the split's left_count records going left
+// first, then the others, each side in its input order. Child bounds are
 // accumulated in the same pass.
-inline PartitionResult partition(PrimRef* refs, PrimRef* scratch, uint32_t begin, uint32_t end,
+inline PartitionResult partition(const PrimRef* src, PrimRef* dst, uint32_t begin, uint32_t end,
                                  const BinMapper& m, const Split& s) {
-    ChildBounds4 acc;
-    uint32_t nl = begin, nr = begin;
+    // The accumulators stay in registers; a side is chosen by a branch, which
+    // real meshes predict well (neighbouring primitives go the same way).
+    simd::Box4 lb, rb, lc, rc;
+    PrimRef* left = dst + begin;
+    PrimRef* right = dst + begin + s.left_count;
     for (uint32_t i = begin; i < end; ++i) {
-        const PrimRef r = refs[i];
-        const __m128 lo = simd::lo(r), hi = simd::hi(r), c = simd::centroid(lo, hi);
-        const bool left = uint32_t(m.indices(c)[s.axis]) < s.index;
-        refs[nl] = r;  // nl <= i: never overwrites an unread record
-        scratch[nr] = r;
-        nl += left;
-        nr += !left;
-        acc.add(!left, lo, hi, c);
+        const __m128 lo = simd::lo(src[i]), hi = simd::hi(src[i]), c = simd::centroid(lo, hi);
+        if (uint32_t(m.indices(c)[s.axis]) < s.index) {
+            *left++ = src[i];
+            lb.grow(lo, hi);
+            lc.grow(c, c);
+        } else {
+            *right++ = src[i];
+            rb.grow(lo, hi);
+            rc.grow(c, c);
+        }
     }
-    std::memcpy(static_cast<void*>(refs + nl), scratch + begin, size_t(nr - begin) * sizeof(PrimRef));
     PartitionResult res;
-    acc.into(res);
-    res.mid = nl;
+    res.left_bounds = lb.box();
+    res.right_bounds = rb.box();
+    res.left_cbounds = lc.box();
+    res.right_cbounds = rc.box();
+    res.mid = begin + s.left_count;
     return res;
 }
 
@@ -335,8 +400,8 @@ inline PartitionResult partition_count(const PrimRef* refs, uint32_t b, uint32_t
     return res;
 }
 
-// Copies the records of refs[b, e) in order: left-going ones from left_out
-// on, right-going ones from right_out on.
+// Copies the records of refs[b, e) in order to another buffer: left-going
+// ones from left_out on, right-going ones from right_out on.
 inline void partition_scatter(const PrimRef* refs, uint32_t b, uint32_t e, const BinMapper& m,
                               const Split& s, PrimRef* left_out, PrimRef* right_out) {
     for (uint32_t i = b; i < e; ++i) {
@@ -369,8 +434,9 @@ inline PartitionResult middle_split(const PrimRef* refs, uint32_t begin, uint32_
     return res;
 }
 
-// Step 4: the two child tasks of a split node.
-inline void emit(const NodeTask& t, const PartitionResult& p, NodeTask out[2]) {
+// Step 4: the two child tasks of a split node; `moved` says whether the
+// partition wrote the records to the other buffer (a middle split does not).
+inline void emit(const NodeTask& t, const PartitionResult& p, bool moved, NodeTask out[2]) {
     out[0].begin = t.begin;
     out[0].end = p.mid;
     out[0].bounds = p.left_bounds;
@@ -384,6 +450,7 @@ inline void emit(const NodeTask& t, const PartitionResult& p, NodeTask out[2]) {
         out[k].parent_begin = t.begin;
         out[k].is_right = k == 1;
         out[k].rights = static_cast<uint8_t>(t.rights + k);
+        out[k].buffer = static_cast<uint8_t>(moved ? 1 - t.buffer : t.buffer);
     }
 }
 
@@ -416,40 +483,61 @@ inline bool sah_says_leaf(const Split& s, uint32_t n, const BuildOptions& opt) {
 
 // Everything a node task needs besides its own range.
 struct KernelContext {
-    PrimRef* refs;
-    PrimRef* scratch;
+    PrimRef* buffers[2];     // the records, and the partition's second buffer
+    uint32_t* permutation;   // leaves write their ids here
     const BuildOptions* options;
+
+    const PrimRef* src(const NodeTask& t) const { return buffers[t.buffer]; }
+    PrimRef* dst(const NodeTask& t) const { return buffers[1 - t.buffer]; }
 };
 
-// The whole node task, sequentially: returns false for a leaf, true when it
-// wrote two child tasks to `children`. `bins` is per-worker scratch.
+// Writes a leaf's primitive ids to the permutation.
+inline void write_leaf(const KernelContext& ctx, const NodeTask& t) {
+    const PrimRef* r = ctx.src(t);
+    for (uint32_t i = t.begin; i < t.end; ++i) ctx.permutation[i] = r[i].id;
+}
+
+// The whole node task, sequentially: returns false for a leaf (whose ids it
+// wrote to the permutation), true when it wrote two child tasks to
+// `children`. `bins` is per-worker scratch.
 inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask children[2],
                      BinSet& bins, SkipCounts& skip) {
     const BuildOptions& opt = *ctx.options;
     const Plan p = plan(t, opt, skip);
-    if (p == Plan::Leaf) return false;
     PartitionResult part;
+    bool moved = false;
     if (p == Plan::Middle) {
-        part = middle_split(ctx.refs, t.begin, t.end);
-    } else {
+        part = middle_split(ctx.src(t), t.begin, t.end);
+    } else if (p == Plan::Sah) {
         const BinMapper m = BinMapper::make(t.cbounds, bins_for(t.size(), opt.bins));
         if (!m.any_valid()) {
             ++skip.coincident_nodes;
-            if (t.size() <= opt.max_leaf) return false;
-            part = middle_split(ctx.refs, t.begin, t.end);
+            if (t.size() <= opt.max_leaf) {
+                write_leaf(ctx, t);
+                return false;
+            }
+            part = middle_split(ctx.src(t), t.begin, t.end);
         } else {
-            skip.axes_not_binned += 3 - (m.valid[0] + m.valid[1] + m.valid[2]);
+            skip.axes_not_binned += 3 - m.valid_count();
             bins.clear(m.bins);
-            bin(ctx.refs, t.begin, t.end, m, bins);
+            bin(ctx.src(t), t.begin, t.end, m, bins);
             const Split s = evaluate(bins, m, t.bounds, opt);
-            if (sah_says_leaf(s, t.size(), opt)) return false;
-            if (s.found())
-                part = partition(ctx.refs, ctx.scratch, t.begin, t.end, m, s);
-            else
-                part = middle_split(ctx.refs, t.begin, t.end);
+            if (sah_says_leaf(s, t.size(), opt)) {
+                write_leaf(ctx, t);
+                return false;
+            }
+            if (s.found()) {
+                part = partition(ctx.src(t), ctx.dst(t), t.begin, t.end, m, s);
+                moved = true;
+            } else {
+                part = middle_split(ctx.src(t), t.begin, t.end);
+            }
         }
+    } else {
+        write_leaf(ctx, t);
+        return false;
     }
-    emit(t, part, children);
+    emit(t, part, moved, children);
     return true;
 }
 

@@ -15,6 +15,14 @@ inline constexpr uint32_t kMaxLeafSize = 255;
 inline constexpr uint64_t kMaxPrimitives = 0xFFFFFFFEull;
 inline constexpr uint32_t kMaxDepthCap = 255;
 
+// Knobs of the parallel schedulers. They change speed, never the tree: the
+// equivalence tests turn them down to drive every code path on small scenes.
+struct SchedulerTuning {
+    uint32_t prims_per_thread = 16384;   // fewer primitives per thread: use fewer threads
+    uint32_t task_cutoff = 4096;         // smaller nodes run their subtree inline
+    uint32_t parallel_node_min = 65536;  // smaller nodes never run team-parallel
+};
+
 struct BuildOptions {
     // Bins per axis (2..256). Nodes with few primitives use fewer bins:
     // bins_for(n) = min(bins, max(4, bit_ceil(n) / 2)), and never fewer than 2.
@@ -30,6 +38,7 @@ struct BuildOptions {
     uint32_t max_depth = 64;
     // Thread upper bound for parallel schedulers (0 = all hardware threads).
     uint32_t threads = 0;
+    SchedulerTuning tuning;
 
     // Throws OptionError when a field is out of range.
     void check() const;

@@ -9,8 +9,7 @@
 //    how the range is cut into chunks does not matter;
 //  - the partition is the stable one, which is unique: blocks count their
 //    left-going records, a prefix sum gives every block its output offsets,
-//    and each block copies its records to the scratch array, which is then
-//    copied back.
+//    and each block copies its records to the other buffer.
 #pragma once
 
 #include "kernel.h"
@@ -33,10 +32,16 @@ public:
     bool splits() const { return splits_; }
 
     // Serial: decides what kind of node this is; a leaf ends the task.
-    void start(SkipCounts& skip) { splits_ = start_impl(skip); }
+    void start(SkipCounts& skip) {
+        splits_ = start_impl(skip);
+        if (!splits_) write_leaf(ctx_, t_);
+    }
 
     // Serial: merges the bins and evaluates; may turn the node into a leaf.
-    void decide() { splits_ = decide_impl(); }
+    void decide() {
+        splits_ = decide_impl();
+        if (!splits_) write_leaf(ctx_, t_);
+    }
 
 private:
     bool start_impl(SkipCounts& skip) {
@@ -79,7 +84,7 @@ public:
         BinSet& b = *chunk_bins_[i];
         b.clear(m_.bins);
         const uint32_t lo = t_.begin + i * kBinChunk, hi = std::min(t_.end, lo + kBinChunk);
-        bin(ctx_.refs, lo, hi, m_, b);
+        bin(ctx_.src(t_), lo, hi, m_, b);
     }
 
     // Parallel over [0, blocks()): counts one block (or, for a middle split,
@@ -88,13 +93,13 @@ public:
     void count_block(uint32_t i) {
         const auto [lo, hi] = block_range(i);
         if (plan_ == Plan::Sah) {
-            block_[i] = partition_count(ctx_.refs, lo, hi, m_, split_);
+            block_[i] = partition_count(ctx_.src(t_), lo, hi, m_, split_);
             return;
         }
         const uint32_t mid = t_.begin + t_.size() / 2;
         ChildBounds4 acc;
-        grow_range(ctx_.refs, lo, std::max(lo, std::min(hi, mid)), acc, 0);
-        grow_range(ctx_.refs, std::min(hi, std::max(lo, mid)), hi, acc, 1);
+        grow_range(ctx_.src(t_), lo, std::max(lo, std::min(hi, mid)), acc, 0);
+        grow_range(ctx_.src(t_), std::min(hi, std::max(lo, mid)), hi, acc, 1);
         block_[i] = PartitionResult{};
         acc.into(block_[i]);
     }
@@ -123,21 +128,17 @@ public:
         result_.mid = t_.begin + left;
     }
 
-    // Parallel over [0, blocks()): copies a block's records to their places
-    // in the scratch array; then, in a second loop, copies them back.
+    // Parallel over [0, blocks()), SAH splits only: copies a block's records
+    // to their places in the other buffer.
     bool moves() const { return plan_ == Plan::Sah; }
     void scatter_block(uint32_t i) {
         const auto [lo, hi] = block_range(i);
-        PrimRef* out = ctx_.scratch + t_.begin;
-        partition_scatter(ctx_.refs, lo, hi, m_, split_, out + left_at_[i], out + right_at_[i]);
-    }
-    void copy_back_block(uint32_t i) {
-        const auto [lo, hi] = block_range(i);
-        std::copy(ctx_.scratch + lo, ctx_.scratch + hi, ctx_.refs + lo);
+        PrimRef* out = ctx_.dst(t_) + t_.begin;
+        partition_scatter(ctx_.src(t_), lo, hi, m_, split_, out + left_at_[i], out + right_at_[i]);
     }
 
     // Serial: the children.
-    void finish(NodeTask children[2]) const { emit(t_, result_, children); }
+    void finish(NodeTask children[2]) const { emit(t_, result_, moves(), children); }
 
 private:
     std::pair<uint32_t, uint32_t> block_range(uint32_t i) const {
@@ -175,10 +176,7 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
     if (!pn.splits()) return false;
     for_each(pn.blocks(), [&](uint32_t i) { pn.count_block(i); });
     serial([&] { pn.prefix(); });
-    if (pn.moves()) {
-        for_each(pn.blocks(), [&](uint32_t i) { pn.scatter_block(i); });
-        for_each(pn.blocks(), [&](uint32_t i) { pn.copy_back_block(i); });
-    }
+    if (pn.moves()) for_each(pn.blocks(), [&](uint32_t i) { pn.scatter_block(i); });
     serial([&] { pn.finish(children); });
     return true;
 }

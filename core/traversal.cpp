@@ -6,13 +6,18 @@
 #include <vector>
 
 // The watertight test relies on a*b - c*d being rounded as two products and a
-// difference: a fused multiply-add would break the exact antisymmetry of the
-// edge function of an edge shared by two triangles. Clang contracts within
-// expressions by default; turn that off for this file. (GCC contracts only
-// when told to, or in GNU mode on FMA targets: build with -ffp-contract=off
-// there.)
+// difference: contracting it into a fused multiply-add would break the exact
+// antisymmetry of the edge function of an edge shared by two triangles, and
+// rays through shared edges would leak. Clang contracts within expressions
+// by default and GCC (in C++, on FMA targets such as -march=haswell)
+// across them, so contraction is turned off for the triangle test.
 #if defined(__clang__)
 #pragma clang fp contract(off)
+#define CANOPY_NO_FP_CONTRACT
+#elif defined(__GNUC__)
+#define CANOPY_NO_FP_CONTRACT __attribute__((optimize("fp-contract=off")))
+#else
+#define CANOPY_NO_FP_CONTRACT
 #endif
 
 namespace canopy {
@@ -87,8 +92,8 @@ bool finish(F U, F V, F W, float az, float bz, float cz, const TriRay& r, float&
     return true;
 }
 
-bool intersect_prepared(const TriRay& r, const Vec3& a, const Vec3& b, const Vec3& c, float& t,
-                        float& u, float& v) {
+CANOPY_NO_FP_CONTRACT bool intersect_prepared(const TriRay& r, const Vec3& a, const Vec3& b,
+                                              const Vec3& c, float& t, float& u, float& v) {
     // Vertices relative to the ray origin.
     const float A[3] = {a.x - r.org.x, a.y - r.org.y, a.z - r.org.z};
     const float B[3] = {b.x - r.org.x, b.y - r.org.y, b.z - r.org.z};

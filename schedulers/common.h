@@ -15,23 +15,23 @@
 
 namespace canopy::sched {
 
-// Tuning constants (they change speed, never the tree).
-inline constexpr uint32_t kPrimsPerThread = 16384;  // fewer per thread: use fewer threads
-inline constexpr uint32_t kTaskCutoff = 4096;       // smaller nodes recurse inline
-inline constexpr uint32_t kParallelNodeMin = 65536; // smaller nodes never run team-parallel
-inline constexpr uint32_t kPrepareBlock = 65536;    // primitives per prepare / extract block
+inline constexpr uint32_t kPrepareBlock = 65536;  // primitives per prepare block
 
-// Threads worth starting for n primitives with at most `asked`.
-inline uint32_t useful_threads(uint32_t n, uint32_t asked) {
-    return std::max(1u, std::min(asked, n / kPrimsPerThread));
+// Threads worth starting for the build: at most the bound asked for, and
+// none beyond what the work can use (small scenes start no threads at all).
+inline uint32_t useful_threads(const BuildState& st) {
+    const uint32_t per = std::max(1u, st.options.tuning.prims_per_thread);
+    return std::max(1u, std::min(st.threads, st.n / per));
 }
 
 // A node runs team-parallel when it is big in absolute terms and big
 // relative to the scene (so that there are too few such nodes to keep every
 // thread busy with whole nodes).
-inline bool team_parallel(uint32_t size, uint32_t n, uint32_t threads) {
-    return threads > 1 && size >= kParallelNodeMin && size >= n / (2 * threads);
+inline bool team_parallel(uint32_t size, uint32_t n, uint32_t threads, const SchedulerTuning& tu) {
+    return threads > 1 && size >= tu.parallel_node_min && size >= n / (2 * threads);
 }
+
+inline bool below_cutoff(const NodeTask& t, const SchedulerTuning& tu) { return t.size() < tu.task_cutoff; }
 
 // Per-worker scratch: bins, the node records it created, its counters.
 struct Worker {
@@ -85,7 +85,8 @@ void prepare_parallel(BuildState& st, ForEach&& for_each) {
     st.finish_prepare(all);
 }
 
-// Places the recorded nodes, writes the permutation and sums the counters.
+// Places the recorded nodes and sums the counters (the leaves wrote the
+// permutation as they were made).
 template <class ForEach>
 void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     std::vector<std::vector<NodeRecord>> arenas;
@@ -96,11 +97,6 @@ void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     }
     place_records(std::span<const std::vector<NodeRecord>>(arenas), st.n, st.bvh.nodes,
                   [&](size_t k, auto&& fn) { for_each(static_cast<uint32_t>(k), fn); });
-    const uint32_t blocks = (st.n + kPrepareBlock - 1) / kPrepareBlock;
-    for_each(blocks, [&](uint32_t b) {
-        const size_t lo = size_t(b) * kPrepareBlock, hi = std::min<size_t>(st.n, lo + kPrepareBlock);
-        st.extract_ids(lo, hi);
-    });
 }
 
 }  // namespace canopy::sched

@@ -61,7 +61,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
             top.big.clear();
             top.next.clear();
             for (const NodeTask& t : top.frontier)
-                (team_parallel(t.size(), n, team) ? top.big : top.small).push_back(t);
+                (team_parallel(t.size(), n, team, ctx.options->tuning) ? top.big : top.small).push_back(t);
         }
         if (top.big.empty()) break;
         for (size_t i = 0; i < top.big.size(); ++i) {

@@ -15,7 +15,7 @@ struct OmpLevels {
     static constexpr const char* name = "omp_levels";
 
     static void run(BuildState& st) {
-        const uint32_t threads = sched::useful_threads(st.n, st.threads);
+        const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
         const KernelContext ctx = st.context();
         struct Level {
@@ -36,7 +36,7 @@ struct OmpLevels {
                     lv.small.clear();
                     lv.next.clear();
                     for (const NodeTask& t : lv.frontier)
-                        (sched::team_parallel(t.size(), n, team) ? lv.big : lv.small).push_back(t);
+                        (sched::team_parallel(t.size(), n, team, ctx.options->tuning) ? lv.big : lv.small).push_back(t);
                     lv.kids.resize(2 * lv.small.size());
                     lv.split.assign(lv.small.size(), 0);
                 }

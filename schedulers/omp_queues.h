@@ -25,7 +25,7 @@ struct OmpQueues {
     static constexpr const char* name = "omp_queues";
 
     static void run(BuildState& st) {
-        const uint32_t threads = sched::useful_threads(st.n, st.threads);
+        const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
         const KernelContext ctx = st.context();
         sched::TopPhase top;
@@ -101,7 +101,7 @@ private:
                 continue;
             }
             idle = 0;
-            if (t.size() < sched::kTaskCutoff) {
+            if (sched::below_cutoff(t, ctx.options->tuning)) {
                 ++wk.skip.inline_tasks;
                 sched::run_subtree(ctx, t, wk);
             } else if (sched::run_recorded(ctx, t, children, wk)) {

@@ -14,7 +14,7 @@ struct OmpTasks {
     static constexpr const char* name = "omp_tasks";
 
     static void run(BuildState& st) {
-        const uint32_t threads = sched::useful_threads(st.n, st.threads);
+        const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
         const KernelContext ctx = st.context();
         sched::TopPhase top;
@@ -35,7 +35,7 @@ private:
     static void task(const KernelContext& ctx, NodeTask t, sched::Workers& workers) {
         while (true) {
             sched::Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
-            if (t.size() < sched::kTaskCutoff) {
+            if (sched::below_cutoff(t, ctx.options->tuning)) {
                 ++wk.skip.inline_tasks;
                 sched::run_subtree(ctx, t, wk);
                 return;

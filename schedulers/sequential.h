@@ -20,7 +20,6 @@ struct Sequential {
         st.stats.threads_used = 1;
         st.finish_prepare(st.prepare_range(0, st.n));
         build_subtree(st);
-        st.extract_ids(0, st.n);
     }
 
 private:

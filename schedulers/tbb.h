@@ -20,8 +20,11 @@ struct Tbb {
     static constexpr const char* name = "tbb";
 
     static void run(BuildState& st) {
-        const uint32_t threads = sched::useful_threads(st.n, st.threads);
-        if (threads == 1) return Sequential::run(st);
+        // Never more threads than the calling context allows (inside a user's
+        // arena, its concurrency), so nothing is oversubscribed.
+        const uint32_t threads = std::min<uint32_t>(
+            sched::useful_threads(st), static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
+        if (threads <= 1) return Sequential::run(st);
         st.stats.threads_used = threads;
         tbb::task_arena arena(static_cast<int>(threads));
         arena.execute([&] {
@@ -48,14 +51,14 @@ private:
         sched::Worker& me() { return workers[static_cast<size_t>(tbb::this_task_arena::current_thread_index())]; }
 
         void task(const NodeTask& t) {
-            if (t.size() < sched::kTaskCutoff) {
+            if (sched::below_cutoff(t, ctx.options->tuning)) {
                 ++me().skip.inline_tasks;
                 sched::run_subtree(ctx, t, me());
                 return;
             }
             NodeTask children[2];
             bool split;
-            if (sched::team_parallel(t.size(), n, threads)) {
+            if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
                 ParallelNode pn(ctx, t);
                 split = run_parallel_node(
                     pn, children, me().skip,

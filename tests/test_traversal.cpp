@@ -508,7 +508,9 @@ TEST(Triangle, DoubleFallbackGivesExactSigns) {
         const float lambda = rng.uniform(0.5f, 2.0f);
         const Vec3 c(b.x * lambda, b.y * lambda, 1.0f);
         const Vec3 a(rng.uniform(-2.0f, 2.0f), rng.uniform(-2.0f, 2.0f), 1.0f);
-        const float Uf = c.x * b.y - c.y * b.x;
+        // (volatile: no fused multiply-add, this is the float evaluation)
+        const volatile float p1 = c.x * b.y, p2 = c.y * b.x;
+        const float Uf = p1 - p2;
         const double Ud = double(c.x) * b.y - double(c.y) * b.x;
         if (Uf == 0.0f && Ud != 0.0) ++float_zero_exact_nonzero;
         ++checked;
@@ -524,7 +526,8 @@ TEST(Triangle, DoubleFallbackGivesExactSigns) {
     const float e = 0x1p-23f;
     const Vec3 b(1.0f, 1.0f + e, 1.0f), c(1.0f + e, 1.0f + 2 * e, 1.0f);
     const Vec3 a(-c.x * 0x1p-10f, -c.y * 0x1p-10f, 1.0f);
-    ASSERT_EQ(c.x * b.y - c.y * b.x, 0.0f);
+    const volatile float p1 = c.x * b.y, p2 = c.y * b.x;
+    ASSERT_EQ(p1 - p2, 0.0f);
     float t, u, v;
     EXPECT_TRUE(canopy::intersect_triangle(r, a, b, c, t, u, v));
     EXPECT_EQ(t, 1.0f);
