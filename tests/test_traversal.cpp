@@ -712,9 +712,9 @@ TEST(Watertight, FineSphereHasNoLeaks) {
     EXPECT_GT(rays, 40000);
 }
 
-// Axis-parallel rays on a closed cube from inside: zero direction
-// components with the origin on the slab planes of every leaf box (0 * inf
-// in the box test).
+// Axis-parallel rays from the centre of the octahedron through its
+// vertices: zero direction components with the origin on slab planes of the
+// leaf boxes (0 * inf in the box test).
 TEST(Watertight, AxisParallelFromInsideOnSlabPlanes) {
     const TriangleMesh m = octahedron();
     const Bvh bvh = build(m, [] { BuildOptions o; o.max_leaf = 1; return o; }());

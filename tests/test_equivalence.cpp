@@ -1,0 +1,218 @@
+// The equivalence suite: every scheduler, at every thread count, builds the
+// bit-identical node array and permutation as the sequential reference.
+#include "core/scene.h"
+#include "core/validate.h"
+#include "schedulers/registry.h"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstring>
+#include <filesystem>
+#include <string>
+#include <thread>
+#include <vector>
+
+#if CANOPY_HAVE_TBB
+#include <tbb/parallel_for.h>
+#endif
+#if CANOPY_HAVE_OPENMP
+#include <omp.h>
+#endif
+
+namespace {
+
+using namespace canopy;
+
+// Tuning turned down so that small scenes reach every code path: threads
+// start from 64 primitives, team-parallel nodes from 512, tasks from 64.
+BuildOptions small_tuning(uint32_t bins, uint32_t threads) {
+    BuildOptions o;
+    o.bins = bins;
+    o.threads = threads;
+    o.tuning.prims_per_thread = 64;
+    o.tuning.task_cutoff = 64;
+    o.tuning.parallel_node_min = 512;
+    return o;
+}
+
+void expect_same(const Bvh& ref, const Bvh& got, const std::string& what) {
+    ASSERT_EQ(ref.nodes.size(), got.nodes.size()) << what;
+    ASSERT_EQ(ref.permutation.size(), got.permutation.size()) << what;
+    EXPECT_EQ(0, std::memcmp(ref.nodes.data(), got.nodes.data(), ref.nodes.size() * sizeof(Node))) << what;
+    EXPECT_EQ(0, std::memcmp(ref.permutation.data(), got.permutation.data(),
+                             ref.permutation.size() * sizeof(uint32_t)))
+        << what;
+}
+
+TriangleMesh scaled(TriangleMesh m, float s) {
+    for (auto& v : m.vertices) v *= s;
+    return m;
+}
+
+struct NamedMesh {
+    std::string name;
+    TriangleMesh mesh;
+};
+
+const std::vector<NamedMesh>& matrix_scenes() {
+    static const std::vector<NamedMesh> scenes = [] {
+        std::vector<NamedMesh> s;
+        s.push_back({"sphere", generate("sphere", 20000, 1)});
+        s.push_back({"random", generate("random", 20000, 7)});
+        s.push_back({"stadium", generate("stadium", 30000, 1)});
+        s.push_back({"plane", generate("plane", 10000, 1)});
+        s.push_back({"coincident", generate("coincident", 3000, 1)});
+        s.push_back({"tiny", scaled(generate("random", 8000, 3), 1e-30f)});
+        s.push_back({"few", generate("random", 100, 5)});
+        return s;
+    }();
+    return scenes;
+}
+
+TEST(Equivalence, FullMatrixOnGeneratedScenes) {
+    for (const NamedMesh& scene : matrix_scenes()) {
+        const TriangleView view = scene.mesh.view();
+        for (uint32_t bins : {2u, 8u, 16u, 64u}) {
+            const BuildOptions seq_opt = small_tuning(bins, 1);
+            const Bvh ref = build<Sequential>(view, seq_opt);
+            const ValidationReport rep = validate(ref, view, seq_opt);
+            ASSERT_TRUE(rep.ok()) << scene.name << " bins " << bins << ": " << rep.summary();
+            for (const SchedulerEntry& s : schedulers()) {
+                for (uint32_t threads : {1u, 2u, 3u, 4u, 8u}) {
+                    const BuildOptions opt = small_tuning(bins, threads);
+                    const int repeats = threads == 1 ? 1 : 2;
+                    for (int r = 0; r < repeats; ++r) {
+                        BuildStats stats;
+                        const Bvh got = s.build_triangles(view, opt, &stats);
+                        const std::string what = scene.name + " bins " + std::to_string(bins) + " " + s.name +
+                                                 " threads " + std::to_string(threads) + " run " +
+                                                 std::to_string(r);
+                        expect_same(ref, got, what);
+                        EXPECT_LE(stats.threads_used, threads) << what;
+                        if (::testing::Test::HasFailure()) return;
+                    }
+                }
+            }
+        }
+    }
+}
+
+// The default tuning on a scene big enough for team-parallel nodes near the
+// root (stadium: one dense object) and for task cutoffs.
+TEST(Equivalence, DefaultTuningOnLargerScenes) {
+    for (const char* spec : {"gen:stadium:200000", "gen:sphere:150000"}) {
+        const Scene scene = load_scene(spec);
+        const TriangleView view = scene.mesh.view();
+        BuildOptions opt;
+        opt.threads = 1;
+        const Bvh ref = build<Sequential>(view, opt);
+        ASSERT_TRUE(validate(ref, view, opt).ok()) << spec;
+        for (const SchedulerEntry& s : schedulers())
+            for (uint32_t threads : {2u, 4u}) {
+                opt.threads = threads;
+                BuildStats stats;
+                expect_same(ref, s.build_triangles(view, opt, &stats),
+                            std::string(spec) + " " + s.name + " threads " + std::to_string(threads));
+                if (std::string(s.name) != "sequential") EXPECT_GT(stats.skipped.parallel_nodes, 0u) << s.name;
+            }
+    }
+}
+
+TEST(Equivalence, BoxInputMatchesToo) {
+    const TriangleMesh m = generate("random", 5000, 11);
+    std::vector<Box> boxes(m.triangle_count());
+    for (size_t t = 0; t < boxes.size(); ++t)
+        for (int k = 0; k < 3; ++k) boxes[t].extend(m.vertex(t, k));
+    const BuildOptions seq = small_tuning(16, 1);
+    const Bvh ref = build<Sequential>(std::span<const Box>(boxes), seq);
+    ASSERT_TRUE(validate(ref, std::span<const Box>(boxes), seq).ok());
+    // Same boxes as the triangles' boxes: the same tree.
+    expect_same(ref, build<Sequential>(m.view(), seq), "boxes vs triangles");
+    for (const SchedulerEntry& s : schedulers())
+        expect_same(ref, s.build_boxes(boxes, small_tuning(16, 3), nullptr), s.name);
+}
+
+TEST(Equivalence, ConcurrentBuildsFromUserThreads) {
+    const TriangleMesh m = generate("sphere", 30000, 1);
+    const Bvh ref = build<Sequential>(m.view(), small_tuning(16, 1));
+    for (const SchedulerEntry& s : schedulers()) {
+        std::atomic<int> mismatches{0};
+        std::vector<std::thread> users;
+        for (int u = 0; u < 3; ++u)
+            users.emplace_back([&] {
+                for (int r = 0; r < 2; ++r)
+                    if (!(s.build_triangles(m.view(), small_tuning(16, 2), nullptr) == ref)) ++mismatches;
+            });
+        for (auto& t : users) t.join();
+        EXPECT_EQ(mismatches.load(), 0) << s.name;
+    }
+}
+
+#if CANOPY_HAVE_TBB
+TEST(Equivalence, InsideAUsersTbbParallelRegion) {
+    const TriangleMesh m = generate("sphere", 20000, 1);
+    const Bvh ref = build<Sequential>(m.view(), small_tuning(16, 1));
+    for (const SchedulerEntry& s : schedulers()) {
+        std::atomic<int> mismatches{0};
+        tbb::parallel_for(0, 4, [&](int) {
+            if (!(s.build_triangles(m.view(), small_tuning(16, 2), nullptr) == ref)) ++mismatches;
+        });
+        EXPECT_EQ(mismatches.load(), 0) << s.name;
+    }
+}
+#endif
+
+#if CANOPY_HAVE_OPENMP
+TEST(Equivalence, InsideAUsersOpenMPParallelRegion) {
+    const TriangleMesh m = generate("sphere", 20000, 1);
+    const Bvh ref = build<Sequential>(m.view(), small_tuning(16, 1));
+    for (const SchedulerEntry& s : schedulers()) {
+        int mismatches = 0;
+#pragma omp parallel num_threads(2) reduction(+ : mismatches)
+        {
+            if (!(s.build_triangles(m.view(), small_tuning(16, 2), nullptr) == ref)) ++mismatches;
+        }
+        EXPECT_EQ(mismatches, 0) << s.name;
+    }
+}
+#endif
+
+// The meshes of ../shared/scenes when present (slow suite).
+TEST(EquivalenceSlow, SharedScenes) {
+    const std::filesystem::path dir = CANOPY_SCENES_DIR;
+    if (!std::filesystem::exists(dir / "cow.obj")) GTEST_SKIP() << "shared scenes not found at " << dir;
+    for (const char* f : {"cow.obj", "CBcoil.obj", "bunny.obj", "dragon_vrip_res3.obj", "sibenik.obj",
+                          "dragon_vrip_res2.obj"}) {
+        const Scene scene = load_scene((dir / f).string());
+        const TriangleView view = scene.mesh.view();
+        BuildOptions opt;
+        opt.threads = 1;
+        const Bvh ref = build<Sequential>(view, opt);
+        const ValidationReport rep = validate(ref, view, opt);
+        ASSERT_TRUE(rep.ok()) << f << ": " << rep.summary();
+        for (const SchedulerEntry& s : schedulers())
+            for (uint32_t threads : {1u, 2u}) {
+                opt.threads = threads;
+                expect_same(ref, s.build_triangles(view, opt, nullptr),
+                            std::string(f) + " " + s.name + " threads " + std::to_string(threads));
+            }
+    }
+}
+
+TEST(EquivalenceSlow, MillionTriangleScenes) {
+    for (const char* spec : {"gen:sphere:1000000", "gen:stadium:1000000"}) {
+        const Scene scene = load_scene(spec);
+        const TriangleView view = scene.mesh.view();
+        BuildOptions opt;
+        opt.threads = 1;
+        const Bvh ref = build<Sequential>(view, opt);
+        ASSERT_TRUE(validate(ref, view, opt).ok()) << spec;
+        for (const SchedulerEntry& s : schedulers()) {
+            opt.threads = 2;
+            expect_same(ref, s.build_triangles(view, opt, nullptr), std::string(spec) + " " + s.name);
+        }
+    }
+}
+
+}  // namespace
