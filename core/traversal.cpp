@@ -170,11 +170,11 @@ struct BoxRay {
 // its leaf box, e.g. an axis-parallel ray on a flat grid). Pruning boxes at
 // exactly the ray's interval could then skip a triangle that the brute force
 // accepts, or that ties the current best with a lower id. So the interval a
-// box is tested against is widened by a relative margin of 2^-16 (256 units
-// of roundoff) of |t| plus the scene's extent seen from the origin in units of t (the
-// scale of the absolute rounding error of t). Only pruning is affected; the
-// hits themselves are decided by the triangle test on the ray's own
-// [tmin, tmax], so the result is the brute-force result.
+// box is tested against is widened by 2^-16 (256 units of roundoff) times
+// |t| plus the scene's extent seen from the origin in units of t (the scale
+// of the absolute rounding error of t). Only pruning is affected; the hits
+// themselves are decided by the triangle test on the ray's own [tmin, tmax],
+// so the result is the brute-force result.
 constexpr float kSlack = 0x1p-16f;
 
 float widen_up(float t, const BoxRay& r) {
