@@ -38,12 +38,12 @@ Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
         if (stats) *stats = BuildStats{};
         return {};
     }
-    const uint32_t leaves_needed = (st.n + st.options.max_leaf - 1) / st.options.max_leaf;
-    if (ceil_log2(leaves_needed) > st.options.max_depth)
+    const uint64_t leaves_needed = (uint64_t(st.n) + st.options.max_leaf - 1) / st.options.max_leaf;
+    if (ceil_log2(static_cast<uint32_t>(leaves_needed)) > st.options.max_depth)
         throw OptionError("max_depth " + std::to_string(st.options.max_depth) + " is too small for " +
                           std::to_string(count) + " primitives in leaves of at most " +
                           std::to_string(st.options.max_leaf) + " (needs " +
-                          std::to_string(ceil_log2(leaves_needed)) + ")");
+                          std::to_string(ceil_log2(static_cast<uint32_t>(leaves_needed))) + ")");
     st.refs.allocate(count);
     st.scratch.allocate(count);
     st.bvh.permutation.resize(count);

@@ -71,7 +71,7 @@ struct SkipCounts {
 // least 2. Small nodes, which are most nodes, use fewer bins: clearing and
 // sweeping bins is the fixed cost of a node.
 inline uint32_t bins_for(uint32_t n, uint32_t bins) {
-    const uint32_t half = n >= 2 ? std::bit_ceil(n) / 2 : 1;
+    const uint32_t half = n >= 2 ? std::bit_floor(n - 1) : 1;  // bit_ceil(n) / 2 without overflow
     return std::max(kMinBins, std::min(bins, std::max(4u, half)));
 }
 
@@ -150,10 +150,11 @@ struct BinMapper {
     std::array<bool, 3> valid{false, false, false};  // axis can be split
     __m128 origin4 = _mm_setzero_ps(), scale4 = _mm_setzero_ps(), last4 = _mm_setzero_ps();
 
-    // scale = 0.99 * bins / extent (Embree's safe scale): the largest
-    // centroid falls inside the last bin. An axis is skipped when its extent
-    // is zero, when the scale is not finite (a subnormal extent), or when the
-    // largest centroid still maps to bin 0.
+    // scale = bins / extent: the largest centroid maps to `bins` and the
+    // clamp puts it in the last bin (so every bin is used, for any bin
+    // count). An axis is skipped when its extent is zero, when the scale is
+    // not finite (a tiny extent), or when the largest centroid still maps
+    // to bin 0.
     static BinMapper make(const Box& cbounds, uint32_t bins) {
         BinMapper m;
         m.origin = cbounds.lo;
@@ -163,7 +164,7 @@ struct BinMapper {
         for (int a = 0; a < 3; ++a) {
             const double ext = cbounds.extent(a);
             if (!(ext > 0.0)) continue;
-            const float sf = static_cast<float>(0.99 * double(bins) / ext);
+            const float sf = static_cast<float>(double(bins) / ext);
             if (std::isfinite(sf) && sf > 0.0f) m.scale[a] = sf;
         }
         m.scale4 = simd::vec(m.scale);

@@ -59,13 +59,12 @@ PrepareSummary prepare_triangles(const TriangleView& mesh, size_t first, size_t 
             continue;
         }
         const Vec3 a = v[i0], b = v[i1], c = v[i2];
-        const Vec3 lo = glm::min(a, glm::min(b, c));
-        const Vec3 hi = glm::max(a, glm::max(b, c));
-        if (!finite(lo) || !finite(hi)) {
+        // Checked on the vertices themselves: min/max would drop a NaN.
+        if (!finite(a) || !finite(b) || !finite(c)) {
             if (s.first_bad == PrepareSummary::kNone) s.first_bad = t;
             continue;
         }
-        record(out[t], s, lo, hi, t);
+        record(out[t], s, glm::min(a, glm::min(b, c)), glm::max(a, glm::max(b, c)), t);
     }
     return s;
 }

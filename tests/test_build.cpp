@@ -278,7 +278,7 @@ TEST(BuildOptionsCheck, MaxDepthTooSmallForTheCount) {
     EXPECT_TRUE(canopy::validate(build(m, opt), m.view(), opt).ok());
 }
 
-// LIBRARY BUG (see the report): run_build() computes the leaves needed as
+// Regression test for a fixed bug: run_build() computes the leaves needed as
 // (n + max_leaf - 1) / max_leaf in uint32_t. For n close to kMaxPrimitives
 // (which the input checks accept) the sum wraps, leaves_needed becomes 0 and
 // a max_depth that is far too small is accepted instead of throwing
@@ -330,7 +330,7 @@ TEST(BuildInput, NaNVertexInFirstCorner) {
     }
 }
 
-// LIBRARY BUG (see the report): prepare_triangles() finds the bounds with
+// Regression test for a fixed bug: prepare_triangles() finds the bounds with
 // glm::min(a, glm::min(b, c)) / glm::max(...) and then tests the *bounds*
 // for finiteness. glm::min(x, y) is (y < x) ? y : x, which drops a NaN in
 // its second argument, so a NaN in the second or third vertex of a triangle
@@ -419,7 +419,7 @@ TEST(BuildShape, DepthCapOnAPathologicalInput) {
     const Bvh d = build(m, deep);
     ASSERT_TRUE(canopy::validate(d, m.view(), deep).ok());
     const uint32_t natural = canopy::tree_stats(d).depth;
-    EXPECT_GT(natural, 30u);
+    EXPECT_GT(natural, 20u);  // deeper than every cap tried below
 
     for (uint32_t max_leaf : {1u, 4u})
         for (uint32_t max_depth = 10; max_depth <= 20; ++max_depth) {

@@ -139,7 +139,7 @@ TEST(KernelBinsFor, RuleValues) {
     EXPECT_EQ(canopy::bins_for(1u << 31, 256), 256u);
 }
 
-// LIBRARY BUG (see the report): kMaxPrimitives allows counts up to
+// Regression test for a fixed bug: kMaxPrimitives allows counts up to
 // 0xFFFFFFFE, but bins_for() computes std::bit_ceil(n) in uint32_t, which is
 // undefined for n > 2^31 (the result 2^32 is not representable). On x86 the
 // shift wraps and the root of such a build gets 4 bins instead of `bins`.
@@ -250,7 +250,7 @@ TEST(KernelBinMapper, MinInBinZeroMaxInLastBin) {
     EXPECT_EQ(bin_index(w, FLT_MAX, 0), 15u);
 }
 
-// LIBRARY BUG (see the report): kernel.h promises that with the safe scale
+// Regression test for a fixed bug: kernel.h promises that with the safe scale
 // 0.99 * bins / extent "the largest centroid falls inside the last bin",
 // but that holds only while 0.01 * bins < 1. For bins >= 100 (the option
 // allows up to 256) the largest centroid lands in bin floor(0.99 * bins):
@@ -280,8 +280,9 @@ TEST(KernelBinMapper, IndexClampsOutsideValues) {
         EXPECT_EQ(bin_index(m, FLT_MAX, a), 7u);
         EXPECT_EQ(bin_index(m, kInf, a), 7u);
     }
-    // Hand value: (15 - 10) * 0.99 * 8 / 10 = 3.96 -> bin 3.
-    EXPECT_EQ(bin_index(m, 15.0f, 0), 3u);
+    // Hand values: (15 - 10) * 8 / 10 = 4 -> bin 4; (14.9 - 10) * 8 / 10 = 3.92 -> bin 3.
+    EXPECT_EQ(bin_index(m, 15.0f, 0), 4u);
+    EXPECT_EQ(bin_index(m, 14.9f, 0), 3u);
 }
 
 // ---------------------------------------------------------------- bin
@@ -405,7 +406,7 @@ TEST(KernelEvaluate, TwoClustersFarApart) {
         EXPECT_EQ(s.left_count, 2u);
         // Half areas: A = 16*4 + 4*3 + 3*16 = 124, B = 16*2 + 2*3 + 3*16 = 86,
         // node = 101*4 + 4*4 + 4*101 = 824.
-        EXPECT_DOUBLE_EQ(s.cost, 1.0 + (124.0 * 2 + 86.0 * 2) / 824.0);
+        EXPECT_NEAR(s.cost, 1.0 + (124.0 * 2 + 86.0 * 2) / 824.0, 1e-6);
 
         // Costs enter as C_t + C_i * (...).
         opt.traversal_cost = 0.5f;
@@ -413,7 +414,7 @@ TEST(KernelEvaluate, TwoClustersFarApart) {
         const Split c = canopy::evaluate(*bins, m, t.bounds, opt);
         EXPECT_EQ(c.axis, axis);
         EXPECT_EQ(c.index, 2u);
-        EXPECT_DOUBLE_EQ(c.cost, 0.5 + 3.0 * (124.0 * 2 + 86.0 * 2) / 824.0);
+        EXPECT_NEAR(c.cost, 0.5 + 3.0 * (124.0 * 2 + 86.0 * 2) / 824.0, 1e-6);
     }
 }
 
@@ -431,7 +432,7 @@ TEST(KernelEvaluate, TiesGoToLowestAxisThenLowestIndex) {
     EXPECT_EQ(s.axis, 0);
     EXPECT_EQ(s.index, 3u);
     EXPECT_EQ(s.left_count, 2u);
-    EXPECT_DOUBLE_EQ(s.cost, 1.0 + (363.0 * 2 + 363.0 * 2) / 2883.0);
+    EXPECT_NEAR(s.cost, 1.0 + (363.0 * 2 + 363.0 * 2) / 2883.0, 1e-6);
 
     // The same on y and z only (x flat): y wins the tie.
     refs.clear();
@@ -480,10 +481,32 @@ TEST(KernelEvaluate, CollinearPrimitivesUseLength) {
     ASSERT_TRUE(s.found());
     EXPECT_EQ(s.axis, 0);
     EXPECT_EQ(s.left_count, 2u);
-    EXPECT_DOUBLE_EQ(s.cost, 1.0 + (1.0 * 2 + 1.0 * 2) / 10.0);
+    EXPECT_NEAR(s.cost, 1.0 + (1.0 * 2 + 1.0 * 2) / 10.0, 1e-6);
 }
 
 // ---------------------------------------------------------------- partition
+
+namespace {
+
+// A split on `axis` at bin `index`, with left_count counted by hand from
+// the scalar centroid() and the mapping (partition() relies on it).
+Split make_split(const std::vector<PrimRef>& refs, uint32_t begin, uint32_t end, const BinMapper& m, int axis,
+                 uint32_t index) {
+    Split s;
+    s.axis = axis;
+    s.index = index;
+    for (uint32_t i = begin; i < end; ++i) s.left_count += left_of(refs[i], m, s);
+    return s;
+}
+
+// A buffer of n records that are all distinguishable from real ones.
+std::vector<PrimRef> sentinels(uint32_t n) {
+    std::vector<PrimRef> v(n);
+    for (uint32_t i = 0; i < n; ++i) v[i] = make_ref(Vec3(-1), Vec3(-2), 0xDEAD0000u + i);
+    return v;
+}
+
+}  // namespace
 
 TEST(KernelPartition, IsTheStablePartition) {
     const uint32_t n = 300, begin = 17, end = 271;
@@ -494,23 +517,31 @@ TEST(KernelPartition, IsTheStablePartition) {
         for (int axis = 0; axis < 3; ++axis) {
             ASSERT_TRUE(m.valid[axis]);
             for (uint32_t idx = 1; idx < nb; ++idx) {
-                Split s;
-                s.axis = axis;
-                s.index = idx;
-                std::vector<PrimRef> refs = input, scratch(n);
-                const PartitionResult p =
-                    canopy::partition(refs.data(), scratch.data(), begin, end, m, s);
+                const Split s = make_split(input, begin, end, m, axis, idx);
+                const std::vector<PrimRef> src = input;
+                std::vector<PrimRef> dst = sentinels(n);
+                const PartitionResult p = canopy::partition(src.data(), dst.data(), begin, end, m, s);
 
+                // std::stable_partition of a copy with the same predicate.
                 std::vector<PrimRef> expected = input;
-                const auto mid = std::stable_partition(
-                    expected.begin() + begin, expected.begin() + end,
-                    [&](const PrimRef& r) { return left_of(r, m, s); });
+                const auto mid = std::stable_partition(expected.begin() + begin, expected.begin() + end,
+                                                       [&](const PrimRef& r) { return left_of(r, m, s); });
                 EXPECT_EQ(p.mid, uint32_t(mid - expected.begin()));
-                // Bit for bit, including the untouched records outside the range.
-                ASSERT_TRUE(same_records(refs, expected)) << "axis " << axis << " index " << idx;
+                EXPECT_EQ(p.mid, begin + s.left_count);
+                // The predicate agrees with the kernel's own.
+                for (const PrimRef& r : input) ASSERT_EQ(canopy::goes_left(r, m, s), left_of(r, m, s));
+                // Bit for bit inside the range; the source is untouched and
+                // nothing outside the range of the destination is written.
+                ASSERT_EQ(0, std::memcmp(dst.data() + begin, expected.data() + begin,
+                                         (end - begin) * sizeof(PrimRef)))
+                    << "axis " << axis << " index " << idx;
+                const std::vector<PrimRef> fresh = sentinels(n);
+                EXPECT_EQ(0, std::memcmp(dst.data(), fresh.data(), begin * sizeof(PrimRef)));
+                EXPECT_EQ(0, std::memcmp(dst.data() + end, fresh.data() + end, (n - end) * sizeof(PrimRef)));
+                EXPECT_TRUE(same_records(src, input));
 
-                const Bounds l = bounds_of(refs.data(), begin, p.mid);
-                const Bounds r = bounds_of(refs.data(), p.mid, end);
+                const Bounds l = bounds_of(dst.data(), begin, p.mid);
+                const Bounds r = bounds_of(dst.data(), p.mid, end);
                 EXPECT_EQ(p.left_bounds, l.bounds);
                 EXPECT_EQ(p.left_cbounds, l.cbounds);
                 EXPECT_EQ(p.right_bounds, r.bounds);
@@ -521,22 +552,44 @@ TEST(KernelPartition, IsTheStablePartition) {
 }
 
 TEST(KernelPartition, HandMadeOrder) {
-    // Centroids x: 5 0 9 1 8 2 (ids 0..5); split in the middle of [0, 9].
+    // Centroids x: 5 0 9 1 8 2 (ids 0..5); with 2 bins over [0, 9] the ones
+    // below 4.55 go left.
     std::vector<PrimRef> refs;
     const float xs[] = {5, 0, 9, 1, 8, 2};
     for (uint32_t i = 0; i < 6; ++i) refs.push_back(make_ref(Vec3(xs[i], 0, 0), Vec3(xs[i], 1, 1), i));
     const NodeTask t = task_of(refs, 0, 6);
-    const BinMapper m = BinMapper::make(t.cbounds, 2);  // x < 4.55 goes to bin 0
-    Split s;
-    s.axis = 0;
-    s.index = 1;
-    std::vector<PrimRef> scratch(6);
-    const PartitionResult p = canopy::partition(refs.data(), scratch.data(), 0, 6, m, s);
+    const BinMapper m = BinMapper::make(t.cbounds, 2);
+    const Split s = make_split(refs, 0, 6, m, 0, 1);
+    EXPECT_EQ(s.left_count, 3u);
+    std::vector<PrimRef> dst(6);
+    const PartitionResult p = canopy::partition(refs.data(), dst.data(), 0, 6, m, s);
     EXPECT_EQ(p.mid, 3u);
     const uint32_t expected_ids[] = {1, 3, 5, 0, 2, 4};
-    for (uint32_t i = 0; i < 6; ++i) EXPECT_EQ(refs[i].id, expected_ids[i]) << i;
+    for (uint32_t i = 0; i < 6; ++i) EXPECT_EQ(dst[i].id, expected_ids[i]) << i;
     EXPECT_EQ(p.left_bounds, (Box{Vec3(0, 0, 0), Vec3(2, 1, 1)}));
     EXPECT_EQ(p.right_bounds, (Box{Vec3(5, 0, 0), Vec3(9, 1, 1)}));
+    EXPECT_EQ(p.left_cbounds, (Box{Vec3(0, 0.5f, 0.5f), Vec3(2, 0.5f, 0.5f)}));
+    EXPECT_EQ(p.right_cbounds, (Box{Vec3(5, 0.5f, 0.5f), Vec3(9, 0.5f, 0.5f)}));
+}
+
+TEST(KernelPartition, EvaluatedSplitPartitionsAsCounted) {
+    // The split evaluate() returns carries the left count partition() uses.
+    const std::vector<PrimRef> input = random_refs(1000, 12);
+    const NodeTask t = task_of(input, 0, 1000);
+    for (uint32_t nb : {2u, 16u, 256u}) {
+        const BinMapper m = BinMapper::make(t.cbounds, nb);
+        const auto bins = binned(input, 0, 1000, m);
+        const Split s = canopy::evaluate(*bins, m, t.bounds, BuildOptions{});
+        ASSERT_TRUE(s.found());
+        EXPECT_EQ(s.left_count, make_split(input, 0, 1000, m, s.axis, s.index).left_count);
+        uint32_t from_bins = 0;
+        for (uint32_t k = 0; k < s.index; ++k) from_bins += bins->count[s.axis][k];
+        EXPECT_EQ(s.left_count, from_bins);
+        std::vector<PrimRef> dst(1000);
+        const PartitionResult p = canopy::partition(input.data(), dst.data(), 0, 1000, m, s);
+        EXPECT_EQ(p.mid, s.left_count);
+        for (uint32_t i = 0; i < 1000; ++i) EXPECT_EQ(left_of(dst[i], m, s), i < p.mid) << i;
+    }
 }
 
 TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
@@ -551,6 +604,7 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
         {400, 10, 11, {1}},
         {400, 50, 350, {1000}},
         {big, 0, big, {canopy::kPartitionBlock}},
+        {big, 1000, big - 7, {canopy::kPartitionBlock, 3, canopy::kPartitionBlock / 2}},
     };
     for (const Case& c : cases) {
         const std::vector<PrimRef> input = random_refs(c.n, 21 + c.begin);
@@ -559,12 +613,10 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
         for (int axis = 0; axis < 3; ++axis) {
             if (!m.valid[axis]) continue;
             for (uint32_t idx : {1u, 5u, 8u, 15u}) {
-                Split s;
-                s.axis = axis;
-                s.index = idx;
+                const Split s = make_split(input, c.begin, c.end, m, axis, idx);
                 // Reference: partition().
-                std::vector<PrimRef> ref = input, scratch(c.n);
-                const PartitionResult p = canopy::partition(ref.data(), scratch.data(), c.begin, c.end, m, s);
+                std::vector<PrimRef> ref = sentinels(c.n);
+                const PartitionResult p = canopy::partition(input.data(), ref.data(), c.begin, c.end, m, s);
 
                 // Blocked: count per block, prefix sums, scatter.
                 std::vector<std::pair<uint32_t, uint32_t>> ranges;
@@ -581,7 +633,8 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
                     merged.merge(counts.back());
                     total_left += counts.back().mid;
                 }
-                std::vector<PrimRef> out = input;
+                EXPECT_EQ(total_left, s.left_count);
+                std::vector<PrimRef> out = sentinels(c.n);
                 uint32_t left_at = c.begin, right_at = c.begin + total_left;
                 for (size_t k = 0; k < ranges.size(); ++k) {
                     const auto [b, e] = ranges[k];
@@ -634,26 +687,33 @@ TEST(KernelEmit, ChildTasks) {
     p.left_cbounds = Box{Vec3(0.5f), Vec3(0.5f)};
     p.right_bounds = Box{Vec3(2, 0, 0), Vec3(4, 1, 1)};
     p.right_cbounds = Box{Vec3(2.5f, 0.5f, 0.5f), Vec3(3.5f, 0.5f, 0.5f)};
-    NodeTask c[2];
-    canopy::emit(t, p, c);
+    for (int moved = 0; moved < 2; ++moved)
+        for (uint8_t buffer = 0; buffer < 2; ++buffer) {
+            t.buffer = buffer;
+            NodeTask c[2];
+            canopy::emit(t, p, moved != 0, c);
 
-    EXPECT_EQ(c[0].begin, 10u);
-    EXPECT_EQ(c[0].end, 17u);
-    EXPECT_EQ(c[1].begin, 17u);
-    EXPECT_EQ(c[1].end, 30u);
-    EXPECT_EQ(c[0].size() + c[1].size(), t.size());
-    EXPECT_EQ(c[0].bounds, p.left_bounds);
-    EXPECT_EQ(c[0].cbounds, p.left_cbounds);
-    EXPECT_EQ(c[1].bounds, p.right_bounds);
-    EXPECT_EQ(c[1].cbounds, p.right_cbounds);
-    for (int k = 0; k < 2; ++k) {
-        EXPECT_EQ(c[k].depth, 4u);
-        EXPECT_EQ(c[k].parent_begin, 10u);
-    }
-    EXPECT_EQ(c[0].rights, 2);  // the left child keeps the parent's rights
-    EXPECT_EQ(c[1].rights, 3);
-    EXPECT_FALSE(c[0].is_right);
-    EXPECT_TRUE(c[1].is_right);
+            EXPECT_EQ(c[0].begin, 10u);
+            EXPECT_EQ(c[0].end, 17u);
+            EXPECT_EQ(c[1].begin, 17u);
+            EXPECT_EQ(c[1].end, 30u);
+            EXPECT_EQ(c[0].size() + c[1].size(), t.size());
+            EXPECT_EQ(c[0].bounds, p.left_bounds);
+            EXPECT_EQ(c[0].cbounds, p.left_cbounds);
+            EXPECT_EQ(c[1].bounds, p.right_bounds);
+            EXPECT_EQ(c[1].cbounds, p.right_cbounds);
+            for (int k = 0; k < 2; ++k) {
+                EXPECT_EQ(c[k].depth, 4u);
+                EXPECT_EQ(c[k].parent_begin, 10u);
+                // A partition moves the records to the other buffer; a
+                // middle split leaves them where they are.
+                EXPECT_EQ(c[k].buffer, moved ? 1 - buffer : buffer);
+            }
+            EXPECT_EQ(c[0].rights, 2);  // the left child keeps the parent's rights
+            EXPECT_EQ(c[1].rights, 3);
+            EXPECT_FALSE(c[0].is_right);
+            EXPECT_TRUE(c[1].is_right);
+        }
 }
 
 // ---------------------------------------------------------------- plan
@@ -729,87 +789,127 @@ TEST(KernelPlan, SahSaysLeaf) {
 
 // ---------------------------------------------------------------- run_node
 
+namespace {
+
+// Two record buffers and a permutation, as a build owns them.
+struct Buffers {
+    std::vector<PrimRef> a, b;
+    std::vector<uint32_t> perm;
+    BuildOptions opt;
+    explicit Buffers(const std::vector<PrimRef>& refs)
+        : a(refs), b(sentinels(uint32_t(refs.size()))), perm(refs.size(), ~0u) {}
+    canopy::KernelContext ctx() { return {{a.data(), b.data()}, perm.data(), &opt}; }
+};
+
+}  // namespace
+
 TEST(KernelRunNode, CoincidentCentroids) {
     // Nested cubes around one point: all centroids coincide.
     std::vector<PrimRef> refs;
     for (uint32_t i = 0; i < 10; ++i) refs.push_back(cube(Vec3(1, 2, 3), float(i + 1), i));
-    const std::vector<PrimRef> before = refs;
-    std::vector<PrimRef> scratch(refs.size());
-    BuildOptions opt;
-    opt.max_leaf = 4;
-    const canopy::KernelContext ctx{refs.data(), scratch.data(), &opt};
+    Buffers buf(refs);
+    buf.opt.max_leaf = 4;
+    const canopy::KernelContext ctx = buf.ctx();
     auto bins = std::make_unique<BinSet>();
 
-    // n = 10 > max_leaf: a middle split.
+    // n = 10 > max_leaf: a middle split, records left in place.
     SkipCounts skip;
     NodeTask children[2];
     ASSERT_TRUE(canopy::run_node(ctx, task_of(refs, 0, 10), children, *bins, skip));
     EXPECT_EQ(skip.coincident_nodes, 1u);
     EXPECT_EQ(skip.depth_cap_splits, 0u);
-    EXPECT_TRUE(same_records(refs, before));  // order kept
+    EXPECT_TRUE(same_records(buf.a, refs));
+    EXPECT_TRUE(same_records(buf.b, sentinels(10)));
     EXPECT_EQ(children[0].begin, 0u);
     EXPECT_EQ(children[0].end, 5u);
     EXPECT_EQ(children[1].begin, 5u);
     EXPECT_EQ(children[1].end, 10u);
+    EXPECT_EQ(children[0].buffer, 0);
+    EXPECT_EQ(children[1].buffer, 0);
     EXPECT_EQ(children[0].bounds, (Box{Vec3(1, 2, 3) - Vec3(5), Vec3(1, 2, 3) + Vec3(5)}));
     EXPECT_EQ(children[1].bounds, (Box{Vec3(1, 2, 3) - Vec3(10), Vec3(1, 2, 3) + Vec3(10)}));
     EXPECT_EQ(children[0].cbounds, (Box{Vec3(1, 2, 3), Vec3(1, 2, 3)}));
     EXPECT_EQ(children[0].depth, 1u);
     EXPECT_EQ(children[1].rights, 1);
+    for (uint32_t v : buf.perm) EXPECT_EQ(v, ~0u);  // no leaf yet
 
-    // n = 4 <= max_leaf: a leaf.
+    // n = 4 <= max_leaf: a leaf, which writes its ids.
     SkipCounts skip2;
     EXPECT_FALSE(canopy::run_node(ctx, task_of(refs, 2, 6), children, *bins, skip2));
     EXPECT_EQ(skip2.coincident_nodes, 1u);
     EXPECT_EQ(skip2.single_leaves, 0u);
-    EXPECT_TRUE(same_records(refs, before));
+    EXPECT_TRUE(same_records(buf.a, refs));
+    for (uint32_t i = 0; i < 10; ++i) EXPECT_EQ(buf.perm[i], i >= 2 && i < 6 ? i : ~0u) << i;
 
     // n = 1: a leaf without looking at the centroids.
     SkipCounts skip3;
     EXPECT_FALSE(canopy::run_node(ctx, task_of(refs, 7, 8), children, *bins, skip3));
     EXPECT_EQ(skip3.single_leaves, 1u);
     EXPECT_EQ(skip3.coincident_nodes, 0u);
+    EXPECT_EQ(buf.perm[7], 7u);
+
+    // A leaf reads its ids from the buffer its task names.
+    std::reverse(buf.b.begin(), buf.b.end());
+    for (uint32_t i = 0; i < 10; ++i) buf.b[i].id = 100 + i;
+    NodeTask in_b = task_of(refs, 8, 10);
+    in_b.buffer = 1;
+    SkipCounts skip4;
+    EXPECT_FALSE(canopy::run_node(ctx, in_b, children, *bins, skip4));
+    EXPECT_EQ(buf.perm[8], 108u);
+    EXPECT_EQ(buf.perm[9], 109u);
 }
 
 TEST(KernelRunNode, SahSplitMatchesTheSteps) {
     const std::vector<PrimRef> input = random_refs(200, 77);
-    std::vector<PrimRef> refs = input, scratch(input.size());
-    BuildOptions opt;
-    const canopy::KernelContext ctx{refs.data(), scratch.data(), &opt};
+    for (uint8_t from = 0; from < 2; ++from) {
+        Buffers buf(input);
+        if (from == 1) std::swap(buf.a, buf.b);  // the records start in buffer 1
+        const canopy::KernelContext ctx = buf.ctx();
+        auto bins = std::make_unique<BinSet>();
+        SkipCounts skip;
+        NodeTask t = task_of(input, 20, 180, 2);
+        t.rights = 1;
+        t.buffer = from;
+        NodeTask children[2];
+        ASSERT_TRUE(canopy::run_node(ctx, t, children, *bins, skip));
+
+        // The same by hand.
+        const BinMapper m = BinMapper::make(t.cbounds, canopy::bins_for(t.size(), buf.opt.bins));
+        const auto b = binned(input, 20, 180, m);
+        const Split s = canopy::evaluate(*b, m, t.bounds, buf.opt);
+        ASSERT_TRUE(s.found());
+        std::vector<PrimRef> expected = sentinels(200);
+        const PartitionResult p = canopy::partition(input.data(), expected.data(), 20, 180, m, s);
+        const std::vector<PrimRef>& dst = from == 0 ? buf.b : buf.a;
+        const std::vector<PrimRef>& src = from == 0 ? buf.a : buf.b;
+        EXPECT_TRUE(same_records(dst, expected));
+        EXPECT_TRUE(same_records(src, input));
+        EXPECT_EQ(children[0].end, p.mid);
+        EXPECT_EQ(children[0].begin, 20u);
+        EXPECT_EQ(children[1].end, 180u);
+        EXPECT_EQ(children[0].bounds, p.left_bounds);
+        EXPECT_EQ(children[1].cbounds, p.right_cbounds);
+        EXPECT_EQ(children[0].depth, 3u);
+        EXPECT_EQ(children[0].rights, 1);
+        EXPECT_EQ(children[1].rights, 2);
+        EXPECT_EQ(children[1].parent_begin, 20u);
+        EXPECT_EQ(children[0].buffer, 1 - from);
+        EXPECT_EQ(children[1].buffer, 1 - from);
+        EXPECT_EQ(skip.coincident_nodes, 0u);
+        EXPECT_EQ(skip.axes_not_binned, 0u);
+    }
+
+    // Depth budget exhausted: a middle split, counted, records in place.
+    Buffers buf(input);
+    const canopy::KernelContext ctx = buf.ctx();
     auto bins = std::make_unique<BinSet>();
     SkipCounts skip;
-    NodeTask t = task_of(input, 20, 180, 2);
-    t.rights = 1;
     NodeTask children[2];
-    ASSERT_TRUE(canopy::run_node(ctx, t, children, *bins, skip));
-
-    // The same by hand.
-    const BinMapper m = BinMapper::make(t.cbounds, canopy::bins_for(t.size(), opt.bins));
-    const auto b = binned(input, 20, 180, m);
-    const Split s = canopy::evaluate(*b, m, t.bounds, opt);
-    ASSERT_TRUE(s.found());
-    std::vector<PrimRef> expected = input, scratch2(input.size());
-    const PartitionResult p = canopy::partition(expected.data(), scratch2.data(), 20, 180, m, s);
-    EXPECT_TRUE(same_records(refs, expected));
-    EXPECT_EQ(children[0].end, p.mid);
-    EXPECT_EQ(children[0].begin, 20u);
-    EXPECT_EQ(children[1].end, 180u);
-    EXPECT_EQ(children[0].bounds, p.left_bounds);
-    EXPECT_EQ(children[1].cbounds, p.right_cbounds);
-    EXPECT_EQ(children[0].depth, 3u);
-    EXPECT_EQ(children[0].rights, 1);
-    EXPECT_EQ(children[1].rights, 2);
-    EXPECT_EQ(children[1].parent_begin, 20u);
-    EXPECT_EQ(skip.coincident_nodes, 0u);
-    EXPECT_EQ(skip.axes_not_binned, 0u);
-
-    // Depth budget exhausted: a middle split, counted.
-    std::vector<PrimRef> refs2 = input;
-    const canopy::KernelContext ctx2{refs2.data(), scratch.data(), &opt};
-    SkipCounts skip2;
-    NodeTask deep = task_of(input, 0, 200, opt.max_depth - 3);  // budget 3 <= ceil_log2(200)
-    ASSERT_TRUE(canopy::run_node(ctx2, deep, children, *bins, skip2));
-    EXPECT_EQ(skip2.depth_cap_splits, 1u);
+    const NodeTask deep = task_of(input, 0, 200, buf.opt.max_depth - 3);  // budget 3 <= ceil_log2(200)
+    ASSERT_TRUE(canopy::run_node(ctx, deep, children, *bins, skip));
+    EXPECT_EQ(skip.depth_cap_splits, 1u);
     EXPECT_EQ(children[0].end, 100u);
-    EXPECT_TRUE(same_records(refs2, input));
+    EXPECT_EQ(children[0].buffer, 0);
+    EXPECT_TRUE(same_records(buf.a, input));
+    EXPECT_TRUE(same_records(buf.b, sentinels(200)));
 }
