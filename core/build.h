@@ -48,6 +48,7 @@ Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
     st.scratch.allocate(count);
     st.bvh.permutation.resize(count);
     S::run(st);
+    if (st.trace) st.trace->resolve(st.bvh.nodes, st.n);
     if (stats) *stats = st.stats;
     return std::move(st.bvh);
 }
@@ -57,23 +58,28 @@ Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
 // Builds over an indexed triangle mesh. Throws InputError for bad triangles
 // (index out of range, non-finite coordinate) naming the lowest such one,
 // and OptionError for bad options.
+// `trace`, when given, records what every worker did (see trace.h).
 template <Scheduler S>
-Bvh build(const TriangleView& mesh, const BuildOptions& options = {}, BuildStats* stats = nullptr) {
+Bvh build(const TriangleView& mesh, const BuildOptions& options = {}, BuildStats* stats = nullptr,
+          TraceLog* trace = nullptr) {
     check_triangle_input(mesh);
     BuildState st;
     st.options = options;
     st.mesh = &mesh;
+    st.trace = trace;
     return detail::run_build<S>(st, mesh.triangle_count(), stats);
 }
 
 // Builds over caller-given primitive boxes (any primitive type); the
 // permutation holds indices into `boxes`.
 template <Scheduler S>
-Bvh build(std::span<const Box> boxes, const BuildOptions& options = {}, BuildStats* stats = nullptr) {
+Bvh build(std::span<const Box> boxes, const BuildOptions& options = {}, BuildStats* stats = nullptr,
+          TraceLog* trace = nullptr) {
     check_box_input(boxes);
     BuildState st;
     st.options = options;
     st.boxes = boxes;
+    st.trace = trace;
     return detail::run_build<S>(st, boxes.size(), stats);
 }
 

@@ -6,6 +6,7 @@
 #include "mesh.h"
 #include "options.h"
 #include "primitives.h"
+#include "trace.h"
 
 #include <cstdint>
 #include <memory>
@@ -45,8 +46,9 @@ struct BuildState {
     Bvh bvh;
     NodeTask root;
     BuildStats stats;
+    TraceLog* trace = nullptr;  // optional
 
-    KernelContext context() { return {{refs.get(), scratch.get()}, bvh.permutation.data(), &options}; }
+    KernelContext context() { return {{refs.get(), scratch.get()}, bvh.permutation.data(), &options, trace}; }
 
     // Computes refs[first, last) from primitives first..last-1.
     PrepareSummary prepare_range(size_t first, size_t last) {

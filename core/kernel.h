@@ -483,10 +483,13 @@ inline bool sah_says_leaf(const Split& s, uint32_t n, const BuildOptions& opt) {
 }
 
 // Everything a node task needs besides its own range.
+class TraceLog;
+
 struct KernelContext {
     PrimRef* buffers[2];     // the records, and the partition's second buffer
     uint32_t* permutation;   // leaves write their ids here
     const BuildOptions* options;
+    TraceLog* trace;         // null unless the build is traced (see trace.h)
 
     const PrimRef* src(const NodeTask& t) const { return buffers[t.buffer]; }
     PrimRef* dst(const NodeTask& t) const { return buffers[1 - t.buffer]; }

@@ -77,16 +77,18 @@ inline uint32_t first_child_slot(uint32_t depth, uint32_t leaves_before, uint32_
     return 1 + 2 * (depth + leaves_before - rights);
 }
 
+// The canonical index of the node a record describes.
+inline uint32_t canonical_slot(const NodeRecord& r, const LeafRank& rank) {
+    if (r.depth == 0) return 0;
+    const uint32_t pbegin = r.is_right ? r.parent_begin : r.begin;
+    const uint32_t prights = r.rights - r.is_right;
+    return first_child_slot(r.depth - 1u, rank.rank(pbegin), prights) + r.is_right;
+}
+
 // Writes one arena's records into their canonical slots of `nodes`.
 inline void place_arena(std::span<const NodeRecord> arena, const LeafRank& rank, Node* nodes) {
     for (const NodeRecord& r : arena) {
-        uint32_t slot = 0;
-        if (r.depth > 0) {
-            const uint32_t pbegin = r.is_right ? r.parent_begin : r.begin;
-            const uint32_t prights = r.rights - r.is_right;
-            slot = first_child_slot(r.depth - 1u, rank.rank(pbegin), prights) + r.is_right;
-        }
-        Node& n = nodes[slot];
+        Node& n = nodes[canonical_slot(r, rank)];
         n.set_box(r.box);
         if (r.count) {
             n.index = r.begin;

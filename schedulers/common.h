@@ -7,6 +7,7 @@
 #include "../core/build.h"
 #include "../core/layout.h"
 #include "../core/parallel_node.h"
+#include "../core/trace.h"
 #include "sequential.h"
 
 #include <algorithm>
@@ -38,18 +39,23 @@ struct Worker {
     std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
     std::vector<NodeRecord> records;
     SkipCounts skip;
+    uint32_t id = 0;  // the trace's track
 };
 
 struct Workers {
     std::vector<Worker> w;
-    explicit Workers(uint32_t count) : w(count) {}
+    explicit Workers(uint32_t count) : w(count) {
+        for (uint32_t i = 0; i < count; ++i) w[i].id = i;
+    }
     Worker& operator[](size_t i) { return w[i]; }
     size_t size() const { return w.size(); }
 };
 
 // Runs one node task sequentially on worker `wk`, recording it. Returns
-// whether it split.
+// whether it split. Traced when above the task cutoff.
 inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask children[2], Worker& wk) {
+    const TraceScope trace(below_cutoff(t, ctx.options->tuning) ? nullptr : ctx.trace, t, wk.id,
+                           TraceSpan::Task);
     const bool split = run_node(ctx, t, children, *wk.bins, wk.skip);
     wk.records.push_back(NodeRecord::of(t, !split));
     return split;
@@ -57,6 +63,7 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 
 // Runs a whole subtree depth-first on worker `wk` (no further parallelism).
 inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
+    const TraceScope trace(ctx.trace, root, wk.id, TraceSpan::Inline);
     NodeTask stack[2 * (kMaxDepthCap + 2)];
     uint32_t top = 0;
     stack[top++] = root;

@@ -68,6 +68,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
 #pragma omp single
             top.node = std::make_unique<ParallelNode>(ctx, top.big[i]);
             Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
+            const TraceScope trace(wk.id == 0 ? ctx.trace : nullptr, top.big[i], wk.id, TraceSpan::Parallel);
             run_parallel_node(
                 *top.node, top.kids, wk.skip, [&](uint32_t k, auto&& fn) { omp.for_each(k, fn); },
                 [&](auto&& fn) { omp.serial(fn); });

@@ -45,6 +45,8 @@ struct OmpLevels {
 #pragma omp single
                     lv.node = std::make_unique<ParallelNode>(ctx, lv.big[i]);
                     sched::Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
+                    const TraceScope trace(wk.id == 0 ? ctx.trace : nullptr, lv.big[i], wk.id,
+                                           TraceSpan::Parallel);
                     run_parallel_node(
                         *lv.node, lv.big_kids, wk.skip, [&](uint32_t k, auto&& fn) { omp.for_each(k, fn); },
                         [&](auto&& fn) { omp.serial(fn); });

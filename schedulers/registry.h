@@ -21,16 +21,30 @@ namespace canopy {
 
 struct SchedulerEntry {
     const char* name;
-    Bvh (*build_triangles)(const TriangleView&, const BuildOptions&, BuildStats*);
-    Bvh (*build_boxes)(std::span<const Box>, const BuildOptions&, BuildStats*);
+    Bvh (*triangles_fn)(const TriangleView&, const BuildOptions&, BuildStats*, TraceLog*);
+    Bvh (*boxes_fn)(std::span<const Box>, const BuildOptions&, BuildStats*, TraceLog*);
+
+    // canopy::build<S> for this entry's S.
+    Bvh build_triangles(const TriangleView& mesh, const BuildOptions& options = {}, BuildStats* stats = nullptr,
+                        TraceLog* trace = nullptr) const {
+        return triangles_fn(mesh, options, stats, trace);
+    }
+    Bvh build_boxes(std::span<const Box> boxes, const BuildOptions& options = {}, BuildStats* stats = nullptr,
+                    TraceLog* trace = nullptr) const {
+        return boxes_fn(boxes, options, stats, trace);
+    }
 };
 
 namespace detail {
 template <Scheduler S>
 constexpr SchedulerEntry entry() {
     return {S::name,
-            [](const TriangleView& m, const BuildOptions& o, BuildStats* s) { return build<S>(m, o, s); },
-            [](std::span<const Box> b, const BuildOptions& o, BuildStats* s) { return build<S>(b, o, s); }};
+            [](const TriangleView& m, const BuildOptions& o, BuildStats* s, TraceLog* t) {
+                return build<S>(m, o, s, t);
+            },
+            [](std::span<const Box> b, const BuildOptions& o, BuildStats* s, TraceLog* t) {
+                return build<S>(b, o, s, t);
+            }};
 }
 inline constexpr SchedulerEntry kSchedulers[] = {
     entry<Sequential>(),

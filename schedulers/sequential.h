@@ -42,6 +42,9 @@ private:
         while (!stack.empty()) {
             const Item it = stack.back();
             stack.pop_back();
+            // Traced like the parallel schedulers' tasks: nodes above the cutoff.
+            const TraceScope trace(it.task.size() < st.options.tuning.task_cutoff ? nullptr : ctx.trace, it.task, 0,
+                                   TraceSpan::Task);
             const bool split = run_node(ctx, it.task, children, *bins, st.stats.skipped);
             Node& node = nodes[it.node];
             node.set_box(it.task.bounds);

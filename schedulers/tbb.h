@@ -59,6 +59,7 @@ private:
             NodeTask children[2];
             bool split;
             if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
+                const TraceScope trace(ctx.trace, t, me().id, TraceSpan::Parallel);
                 ParallelNode pn(ctx, t);
                 split = run_parallel_node(
                     pn, children, me().skip,

@@ -3,6 +3,7 @@
 #include "core/bvh.h"
 #include "core/sah.h"
 #include "core/scene.h"
+#include "core/trace.h"
 #include "core/validate.h"
 
 #include <nlohmann/json.hpp>
@@ -27,6 +28,7 @@ struct BuildArgs {
     uint32_t repeat = 1;
     bool json = false;
     std::string save;
+    std::string trace;
 };
 
 int run_build(const BuildArgs& a) {
@@ -53,6 +55,17 @@ int run_build(const BuildArgs& a) {
             return kInvalid;
         }
         bvh = std::move(fresh);
+    }
+    if (!a.trace.empty()) {
+        // One more build, traced, after the timed ones (so tracing never
+        // shows in build_ms); it must give the same tree.
+        TraceLog log;
+        const Bvh traced = sched->build_triangles(view, opt, nullptr, &log);
+        if (!(traced == bvh)) {
+            std::cerr << "canopy build: the traced build differs from the untraced one\n";
+            return kInvalid;
+        }
+        write_chrome_trace(log, a.trace, sched->name, opt.threads ? opt.threads : std::thread::hardware_concurrency());
     }
     const ValidationReport report = validate(bvh, view, opt);
     const TreeStats ts = tree_stats(bvh);
@@ -121,6 +134,8 @@ Runner add_build(CLI::App& app) {
         ->check(CLI::Range(1u, 100000u));
     build->add_flag("--json", a->json, "One JSON object on stdout");
     build->add_option("--save", a->save, "Write the BVH to FILE (canopy binary format)");
+    build->add_option("--trace", a->trace,
+                      "Write a Chrome trace (JSON, for Perfetto / chrome://tracing) of one more build to FILE");
     return [a, build]() { return *build ? run_build(*a) : -1; };
 }
 

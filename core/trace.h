@@ -1,0 +1,100 @@
+// canopy: an optional trace of what every worker did during a build, written
+// in the Chrome Trace Event Format (opens in Perfetto and chrome://tracing).
+//
+// A span is a node task as the scheduler ran it: a node processed on its own
+// ("task"), a whole subtree run inline below the task cutoff ("inline"), or
+// a big node processed by the whole team ("parallel"). Tracing is off unless
+// a TraceLog is passed to the build; when off, the only cost is one pointer
+// test per scheduled task, outside every per-primitive loop.
+#pragma once
+
+#include "layout.h"
+
+#include <chrono>
+#include <cstdint>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace canopy {
+
+struct TraceSpan {
+    enum Kind : uint8_t { Task, Inline, Parallel };
+    uint64_t start_ns, end_ns;  // since the log's start
+    uint32_t worker;
+    uint32_t node;              // canonical node index (filled in after placement)
+    uint32_t begin, count;      // the node's range of the permutation
+    uint32_t parent_begin;
+    uint8_t depth, rights, is_right;
+    Kind kind;
+};
+
+class TraceLog {
+public:
+    TraceLog() : start_(std::chrono::steady_clock::now()) {}
+
+    uint64_t now_ns() const {
+        return static_cast<uint64_t>(
+            std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start_)
+                .count());
+    }
+    // Thread-safe.
+    void add(const TraceSpan& s) {
+        std::lock_guard<std::mutex> lock(mutex_);
+        spans_.push_back(s);
+    }
+    std::vector<TraceSpan>& spans() { return spans_; }
+    const std::vector<TraceSpan>& spans() const { return spans_; }
+
+    // Gives every span its canonical node index (the same arithmetic as
+    // place_records, over the finished tree's leaves). Called by the build.
+    void resolve(const std::vector<Node>& nodes, uint32_t primitive_count) {
+        LeafRank rank(primitive_count);
+        for (const Node& n : nodes)
+            if (n.is_leaf()) rank.mark(n.index);
+        rank.finish();
+        for (TraceSpan& s : spans_) {
+            NodeRecord r{};
+            r.begin = s.begin;
+            r.parent_begin = s.parent_begin;
+            r.depth = s.depth;
+            r.rights = s.rights;
+            r.is_right = s.is_right;
+            s.node = canonical_slot(r, rank);
+        }
+    }
+
+private:
+    std::chrono::steady_clock::time_point start_;
+    std::mutex mutex_;
+    std::vector<TraceSpan> spans_;
+};
+
+// Starts a span at construction and adds it at destruction, when `log` is
+// not null.
+class TraceScope {
+public:
+    TraceScope(TraceLog* log, const NodeTask& t, uint32_t worker, TraceSpan::Kind kind) : log_(log) {
+        if (!log_) return;
+        span_ = TraceSpan{log_->now_ns(), 0, worker, 0, t.begin, t.size(), t.parent_begin,
+                          static_cast<uint8_t>(t.depth), t.rights, static_cast<uint8_t>(t.is_right), kind};
+    }
+    ~TraceScope() {
+        if (!log_) return;
+        span_.end_ns = log_->now_ns();
+        log_->add(span_);
+    }
+    TraceScope(const TraceScope&) = delete;
+    TraceScope& operator=(const TraceScope&) = delete;
+
+private:
+    TraceLog* log_;
+    TraceSpan span_{};
+};
+
+// Writes the Chrome trace JSON. Throws canopy::Error when the file cannot
+// be written.
+void write_chrome_trace(const TraceLog& log, const std::string& path, const std::string& scheduler,
+                        uint32_t threads);
+
+}  // namespace canopy
