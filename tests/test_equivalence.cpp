@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <string>
@@ -34,6 +35,18 @@ BuildOptions small_tuning(uint32_t bins, uint32_t threads) {
     o.tuning.task_cutoff = 64;
     o.tuning.parallel_node_min = 512;
     return o;
+}
+
+// The schedulers under test: all compiled in, or those named in the
+// environment variable CANOPY_TEST_SCHEDULERS ("tbb,sequential"), which the
+// ThreadSanitizer run uses.
+std::vector<SchedulerEntry> tested_schedulers() {
+    const char* env = std::getenv("CANOPY_TEST_SCHEDULERS");
+    std::vector<SchedulerEntry> out;
+    for (const SchedulerEntry& s : schedulers())
+        if (!env || ("," + std::string(env) + ",").find("," + std::string(s.name) + ",") != std::string::npos)
+            out.push_back(s);
+    return out;
 }
 
 void expect_same(const Bvh& ref, const Bvh& got, const std::string& what) {
@@ -78,7 +91,7 @@ TEST(Equivalence, FullMatrixOnGeneratedScenes) {
             const Bvh ref = build<Sequential>(view, seq_opt);
             const ValidationReport rep = validate(ref, view, seq_opt);
             ASSERT_TRUE(rep.ok()) << scene.name << " bins " << bins << ": " << rep.summary();
-            for (const SchedulerEntry& s : schedulers()) {
+            for (const SchedulerEntry& s : tested_schedulers()) {
                 for (uint32_t threads : {1u, 2u, 3u, 4u, 8u}) {
                     const BuildOptions opt = small_tuning(bins, threads);
                     const int repeats = threads == 1 ? 1 : 2;
@@ -108,7 +121,7 @@ TEST(Equivalence, DefaultTuningOnLargerScenes) {
         opt.threads = 1;
         const Bvh ref = build<Sequential>(view, opt);
         ASSERT_TRUE(validate(ref, view, opt).ok()) << spec;
-        for (const SchedulerEntry& s : schedulers())
+        for (const SchedulerEntry& s : tested_schedulers())
             for (uint32_t threads : {2u, 4u}) {
                 opt.threads = threads;
                 BuildStats stats;
@@ -129,14 +142,14 @@ TEST(Equivalence, BoxInputMatchesToo) {
     ASSERT_TRUE(validate(ref, std::span<const Box>(boxes), seq).ok());
     // Same boxes as the triangles' boxes: the same tree.
     expect_same(ref, build<Sequential>(m.view(), seq), "boxes vs triangles");
-    for (const SchedulerEntry& s : schedulers())
+    for (const SchedulerEntry& s : tested_schedulers())
         expect_same(ref, s.build_boxes(boxes, small_tuning(16, 3), nullptr), s.name);
 }
 
 TEST(Equivalence, ConcurrentBuildsFromUserThreads) {
     const TriangleMesh m = generate("sphere", 30000, 1);
     const Bvh ref = build<Sequential>(m.view(), small_tuning(16, 1));
-    for (const SchedulerEntry& s : schedulers()) {
+    for (const SchedulerEntry& s : tested_schedulers()) {
         std::atomic<int> mismatches{0};
         std::vector<std::thread> users;
         for (int u = 0; u < 3; ++u)
@@ -153,7 +166,7 @@ TEST(Equivalence, ConcurrentBuildsFromUserThreads) {
 TEST(Equivalence, InsideAUsersTbbParallelRegion) {
     const TriangleMesh m = generate("sphere", 20000, 1);
     const Bvh ref = build<Sequential>(m.view(), small_tuning(16, 1));
-    for (const SchedulerEntry& s : schedulers()) {
+    for (const SchedulerEntry& s : tested_schedulers()) {
         std::atomic<int> mismatches{0};
         tbb::parallel_for(0, 4, [&](int) {
             if (!(s.build_triangles(m.view(), small_tuning(16, 2), nullptr) == ref)) ++mismatches;
@@ -167,7 +180,7 @@ TEST(Equivalence, InsideAUsersTbbParallelRegion) {
 TEST(Equivalence, InsideAUsersOpenMPParallelRegion) {
     const TriangleMesh m = generate("sphere", 20000, 1);
     const Bvh ref = build<Sequential>(m.view(), small_tuning(16, 1));
-    for (const SchedulerEntry& s : schedulers()) {
+    for (const SchedulerEntry& s : tested_schedulers()) {
         int mismatches = 0;
 #pragma omp parallel num_threads(2) reduction(+ : mismatches)
         {
@@ -191,7 +204,7 @@ TEST(EquivalenceSlow, SharedScenes) {
         const Bvh ref = build<Sequential>(view, opt);
         const ValidationReport rep = validate(ref, view, opt);
         ASSERT_TRUE(rep.ok()) << f << ": " << rep.summary();
-        for (const SchedulerEntry& s : schedulers())
+        for (const SchedulerEntry& s : tested_schedulers())
             for (uint32_t threads : {1u, 2u}) {
                 opt.threads = threads;
                 expect_same(ref, s.build_triangles(view, opt, nullptr),
@@ -208,7 +221,7 @@ TEST(EquivalenceSlow, MillionTriangleScenes) {
         opt.threads = 1;
         const Bvh ref = build<Sequential>(view, opt);
         ASSERT_TRUE(validate(ref, view, opt).ok()) << spec;
-        for (const SchedulerEntry& s : schedulers()) {
+        for (const SchedulerEntry& s : tested_schedulers()) {
             opt.threads = 2;
             expect_same(ref, s.build_triangles(view, opt, nullptr), std::string(spec) + " " + s.name);
         }
