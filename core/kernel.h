@@ -146,15 +146,24 @@ struct Measure {
 struct BinMapper {
     Vec3 origin{0.0f};
     Vec3 scale{0.0f};  // 0 on axes that are not valid
+    Vec3 prescale{1.0f};  // a power of two for tiny extents, else 1
     uint32_t bins = 0;
     std::array<bool, 3> valid{false, false, false};  // axis can be split
     __m128 origin4 = _mm_setzero_ps(), scale4 = _mm_setzero_ps(), last4 = _mm_setzero_ps();
+    __m128 prescale4 = _mm_set1_ps(1.0f);
 
     // scale = bins / extent: the largest centroid maps to `bins` and the
     // clamp puts it in the last bin (so every bin is used, for any bin
     // count). An axis is skipped when its extent is zero, when the scale is
     // not finite (a tiny extent), or when the largest centroid still maps
     // to bin 0.
+    //
+    // Tiny extents (below 2^-64, e.g. a mesh scaled by 10^-30, or subnormal
+    // coordinates) would make bins / extent overflow float: there the
+    // offset c - origin (exact for such small differences) is first
+    // multiplied by a power of two (exact too) that brings the extent near
+    // 1, and the scale is computed for the rescaled extent. Other axes keep
+    // a prescale of 1, so the mapping of ordinary scenes is unchanged.
     static BinMapper make(const Box& cbounds, uint32_t bins) {
         BinMapper m;
         m.origin = cbounds.lo;
@@ -162,11 +171,17 @@ struct BinMapper {
         m.origin4 = simd::vec(m.origin);
         m.last4 = _mm_set1_ps(float(bins - 1));
         for (int a = 0; a < 3; ++a) {
-            const double ext = cbounds.extent(a);
+            double ext = cbounds.extent(a);
             if (!(ext > 0.0)) continue;
+            if (ext < 0x1p-64) {
+                const int e = std::min(-std::ilogb(ext), 126);
+                m.prescale[a] = std::ldexp(1.0f, e);
+                ext = std::ldexp(ext, e);
+            }
             const float sf = static_cast<float>(double(bins) / ext);
             if (std::isfinite(sf) && sf > 0.0f) m.scale[a] = sf;
         }
+        m.prescale4 = simd::vec(m.prescale);
         m.scale4 = simd::vec(m.scale);
         const auto top = m.indices(simd::vec(cbounds.hi));
         for (int a = 0; a < 3; ++a) {
@@ -183,7 +198,7 @@ struct BinMapper {
     // clamped to [0, bins - 1] before the conversion (so no out-of-range
     // float-to-int conversion can happen, even for an infinite product).
     __m128i indices4(__m128 c) const {
-        __m128 f = _mm_mul_ps(_mm_sub_ps(c, origin4), scale4);
+        __m128 f = _mm_mul_ps(_mm_mul_ps(_mm_sub_ps(c, origin4), prescale4), scale4);
         f = _mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), last4);
         return _mm_cvttps_epi32(f);
     }

@@ -2,7 +2,12 @@
 #include "scene.h"
 
 #include "error.h"
+#include "ply.h"
 
+#include <assimp/Importer.hpp>
+#include <assimp/config.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
 #include <tiny_obj_loader.h>
 
 #include <algorithm>
@@ -11,6 +16,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstddef>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <istream>
@@ -21,6 +27,7 @@
 #include <streambuf>
 #include <string_view>
 #include <system_error>
+#include <unordered_map>
 #include <utility>
 
 namespace canopy {
@@ -525,6 +532,313 @@ std::string trim_message(std::string s) {
 }
 
 // ---------------------------------------------------------------------------
+// COLLADA, glTF / GLB: through Assimp.
+//
+// Only aiProcess_Triangulate (and the structure validation) runs; the node
+// graph is walked here, each node's transform accumulated in double from the
+// root (which holds the COLLADA unit scale) and applied to the positions of
+// the meshes it instances, rounded to float once. COLLADA's up axis is
+// ignored, so coordinates keep the file's own axes. Assimp gives every face
+// corner its own vertex; within each placed mesh, vertices with bitwise
+// equal positions are shared again (so the counts are the file's), never
+// across meshes. Triangles keep Assimp's order. Points and lines are
+// skipped. Assimp's logger is never created, so it prints nothing.
+
+struct Matrix {
+    double m[4][4];  // row-major; p' = M p for column vectors, as aiMatrix4x4
+
+    static Matrix from(const aiMatrix4x4& a) {
+        const ai_real* r[4] = {a[0], a[1], a[2], a[3]};
+        Matrix out{};
+        for (int i = 0; i < 4; ++i)
+            for (int j = 0; j < 4; ++j) out.m[i][j] = static_cast<double>(r[i][j]);
+        return out;
+    }
+    Matrix operator*(const Matrix& b) const {
+        Matrix out{};
+        for (int i = 0; i < 4; ++i)
+            for (int j = 0; j < 4; ++j)
+                for (int k = 0; k < 4; ++k) out.m[i][j] += m[i][k] * b.m[k][j];
+        return out;
+    }
+    Vec3 apply(const aiVector3D& p) const {
+        const double x = p.x, y = p.y, z = p.z;
+        double r[3];
+        for (int i = 0; i < 3; ++i) r[i] = m[i][0] * x + m[i][1] * y + m[i][2] * z + m[i][3];
+        return make_vec(r[0], r[1], r[2]);
+    }
+};
+
+struct PositionKey {
+    uint32_t bits[3];
+    bool operator==(const PositionKey&) const = default;
+};
+
+struct PositionHash {
+    size_t operator()(const PositionKey& k) const {
+        uint64_t h = 0xcbf29ce484222325ull;
+        for (uint32_t b : k.bits) h = (h ^ b) * 0x100000001b3ull;
+        return static_cast<size_t>(h ^ (h >> 29));
+    }
+};
+
+void check_readable(const std::string& path) {
+    std::error_code ec;
+    if (std::filesystem::is_directory(path, ec)) throw InputError(path + ": cannot open: is a directory");
+    errno = 0;
+    std::ifstream in(path, std::ios::binary);
+    if (!in) {
+        const int e = errno;
+        throw InputError(path + ": cannot open" +
+                         (e != 0 ? ": " + std::generic_category().message(e) : std::string()));
+    }
+}
+
+TriangleMesh load_with_assimp(const std::string& path) {
+    check_readable(path);
+    Assimp::Importer importer;
+    importer.SetPropertyBool(AI_CONFIG_IMPORT_COLLADA_IGNORE_UP_DIRECTION, true);
+    const aiScene* scene = importer.ReadFile(path, aiProcess_Triangulate | aiProcess_ValidateDataStructure);
+    if (scene == nullptr) {
+        const std::string error = trim_message(importer.GetErrorString());
+        throw InputError(path + ": Assimp: " + (error.empty() ? "cannot import the file" : error));
+    }
+    if (scene->mRootNode == nullptr || scene->mNumMeshes == 0)
+        throw InputError(path + ": no triangles (the file has no meshes)");
+
+    TriangleMesh mesh;
+    std::unordered_map<PositionKey, uint32_t, PositionHash> shared;
+    std::vector<uint32_t> remap;
+    uint64_t faces = 0, skipped = 0;
+    struct Item {
+        const aiNode* node;
+        Matrix world;
+    };
+    std::vector<Item> stack{{scene->mRootNode, Matrix::from(scene->mRootNode->mTransformation)}};
+    while (!stack.empty()) {
+        const Item item = stack.back();
+        stack.pop_back();
+        const aiNode* node = item.node;
+        for (unsigned c = node->mNumChildren; c-- > 0;) {  // children in order, first on top
+            const aiNode* child = node->mChildren[c];
+            stack.push_back({child, item.world * Matrix::from(child->mTransformation)});
+        }
+        for (unsigned mi = 0; mi < node->mNumMeshes; ++mi) {
+            if (node->mMeshes[mi] >= scene->mNumMeshes)
+                throw InputError(path + ": node '" + node->mName.C_Str() + "' refers to mesh " +
+                                 std::to_string(node->mMeshes[mi]) + " of " + std::to_string(scene->mNumMeshes));
+            const aiMesh* m = scene->mMeshes[node->mMeshes[mi]];
+            const std::string where = path + ": mesh '" + m->mName.C_Str() + "' (node '" + node->mName.C_Str() + "')";
+            if (m->mVertices == nullptr && m->mNumVertices > 0) throw InputError(where + ": no positions");
+            remap.assign(m->mNumVertices, std::numeric_limits<uint32_t>::max());
+            shared.clear();
+            const auto vertex = [&](unsigned v) {
+                if (v >= m->mNumVertices)
+                    throw InputError(where + ": vertex index " + std::to_string(v) + " out of range (" +
+                                     std::to_string(m->mNumVertices) + " vertices)");
+                if (remap[v] != std::numeric_limits<uint32_t>::max()) return remap[v];
+                const Vec3 p = item.world.apply(m->mVertices[v]);
+                if (!is_finite(p))
+                    throw InputError(where + ": vertex " + std::to_string(v) + " has a non-finite coordinate " +
+                                     format_vec(p) + " (after the node transforms)");
+                PositionKey key{};
+                std::memcpy(key.bits, &p[0], sizeof(float));
+                std::memcpy(key.bits + 1, &p[1], sizeof(float));
+                std::memcpy(key.bits + 2, &p[2], sizeof(float));
+                const auto [it, inserted] = shared.try_emplace(key, static_cast<uint32_t>(mesh.vertices.size()));
+                if (inserted) {
+                    if (mesh.vertices.size() >= std::numeric_limits<uint32_t>::max())
+                        throw InputError(path + ": more vertices than 32-bit indices can address");
+                    mesh.vertices.push_back(p);
+                }
+                return remap[v] = it->second;
+            };
+            for (unsigned f = 0; f < m->mNumFaces; ++f) {
+                const aiFace& face = m->mFaces[f];
+                ++faces;
+                if (face.mNumIndices < 3) {  // a point or a line
+                    ++skipped;
+                    continue;
+                }
+                const uint32_t first = vertex(face.mIndices[0]);
+                uint32_t prev = vertex(face.mIndices[1]);
+                for (unsigned k = 2; k < face.mNumIndices; ++k) {
+                    const uint32_t cur = vertex(face.mIndices[k]);
+                    push_triangle(mesh, first, prev, cur);
+                    prev = cur;
+                }
+            }
+        }
+    }
+    if (mesh.indices.empty())
+        throw InputError(path + ": no triangles (" + std::to_string(scene->mNumMeshes) + " meshes, " +
+                         std::to_string(faces) + " faces placed in the scene, " + std::to_string(skipped) +
+                         " of them points or lines)");
+    return mesh;
+}
+
+// ---------------------------------------------------------------------------
+// OFF (Object File Format), read here: Assimp's OFF importer clamps
+// out-of-range indices to the last vertex, drops faces of more than 9
+// vertices, and reads comment and blank-looking lines as vertices, all
+// silently.
+//
+//   [ST][C][N][4][n]OFF        header keyword (optional, as in geomview)
+//   [dimension]                with the n prefix (3 only)
+//   vertices faces [edges]     may follow the keyword on its line
+//   x y z [w] [more ...]       one vertex per line (4: divided by w)
+//   n i0 i1 ... [color ...]    one face per line, indices 0-based
+//
+// '#' starts a comment anywhere; blank lines are skipped. Faces are
+// triangulated as fans (i0, ik, ik+1); whatever follows a vertex's
+// coordinates or a face's indices on its line (normals, colors, texture
+// coordinates) is ignored.
+
+TriangleMesh load_off(const std::string& path) {
+    const std::string text = read_whole_file(path);
+    if (text.find_first_not_of(" \t\r\n") == std::string::npos) throw InputError(path + ": empty file");
+
+    struct Line {
+        size_t number;
+        std::string_view text;
+    };
+    size_t pos = 0, line_no = 0;
+    // The next line with a token on it, comments removed; false at the end.
+    const auto next_line = [&](Line& out) {
+        const std::string_view all(text);
+        while (pos < all.size()) {
+            size_t end = all.find_first_of("\r\n", pos);
+            if (end == std::string_view::npos) end = all.size();
+            std::string_view line = all.substr(pos, end - pos);
+            pos = end;
+            if (pos < all.size()) pos += (all[pos] == '\r' && pos + 1 < all.size() && all[pos + 1] == '\n') ? 2 : 1;
+            ++line_no;
+            line = line.substr(0, line.find('#'));
+            if (line.find_first_not_of(" \t") != std::string_view::npos) {  // as split_tokens
+                out = {line_no, line};
+                return true;
+            }
+        }
+        return false;
+    };
+    const auto fail = [&](size_t line, const std::string& what) {
+        throw InputError(path + ": line " + std::to_string(line) + ": " + what);
+    };
+
+    std::vector<std::string_view> tokens;
+    Line line{};
+    if (!next_line(line)) throw InputError(path + ": no data (only comments and blank lines)");
+    split_tokens(line.text, tokens);
+    size_t first = 0;  // first count token on the line
+    bool homogeneous = false;
+    if (std::string_view keyword = tokens[0]; keyword.ends_with("OFF")) {
+        keyword.remove_suffix(3);
+        for (const std::string_view prefix : {"ST", "C", "N", "4", "n"}) {
+            if (keyword.starts_with(prefix)) {
+                keyword.remove_prefix(prefix.size());
+                if (prefix == "4") homogeneous = true;
+                if (prefix == "n") {
+                    // The dimension follows the keyword.
+                    first = 1;
+                    if (tokens.size() == 1) {
+                        if (!next_line(line)) fail(line.number, "no dimension after " + quote(tokens[0]));
+                        split_tokens(line.text, tokens);
+                        first = 0;
+                    }
+                    uint64_t dimension = 0;
+                    if (!parse_u64(tokens[first], dimension) || dimension != 3)
+                        fail(line.number, "dimension " + quote(tokens[first]) + " is not supported (only 3)");
+                    ++first;
+                }
+            }
+        }
+        if (!keyword.empty()) fail(line.number, "unknown header keyword " + quote(tokens[0]));
+        if (first == 0) first = 1;
+        if (first == tokens.size()) {
+            if (!next_line(line)) fail(line.number, "no vertex and face counts after the header");
+            split_tokens(line.text, tokens);
+            first = 0;
+        }
+    } else if (tokens[0].empty() || tokens[0][0] < '0' || tokens[0][0] > '9') {
+        fail(line.number, "not an OFF file: " + quote(tokens[0]) + " is neither a header keyword nor a count");
+    }
+    uint64_t counts[2] = {0, 0};
+    for (int k = 0; k < 2; ++k) {
+        if (first + k >= tokens.size() || !parse_u64(tokens[first + k], counts[k]))
+            fail(line.number, "expected the vertex and face counts, found " + quote(line.text));
+    }
+    if (tokens.size() > first + 3) fail(line.number, "more than three counts (vertices faces edges)");
+    const uint64_t vertex_count = counts[0], face_count = counts[1];
+    if (face_count == 0) fail(line.number, "no triangles: the header declares 0 faces");
+    // Every vertex line takes at least 6 bytes ("0 0 0\n"), every face
+    // line 7 ("3 0 0 0"), which bounds what the counts may claim.
+    const uint64_t size = text.size();
+    if (vertex_count > size / 6 || face_count > size / 7 || vertex_count * 6 + face_count * 7 > size + 1)
+        fail(line.number, "counts " + std::to_string(vertex_count) + " vertices, " + std::to_string(face_count) +
+                              " faces are inconsistent with the file size (" + std::to_string(size) + " bytes)");
+    if (vertex_count > std::numeric_limits<uint32_t>::max())
+        fail(line.number, std::to_string(vertex_count) + " vertices: more than 32-bit indices can address");
+
+    TriangleMesh mesh;
+    mesh.vertices.reserve(static_cast<size_t>(vertex_count));
+    mesh.indices.reserve(3 * static_cast<size_t>(face_count));
+    const size_t need = homogeneous ? 4 : 3;
+    for (uint64_t v = 0; v < vertex_count; ++v) {
+        const std::string name = "vertex " + std::to_string(v);
+        if (!next_line(line))
+            throw InputError(path + ": file ends after line " + std::to_string(line_no) + ", before " + name + " (of " +
+                             std::to_string(vertex_count) + "): truncated, or the header's counts are wrong");
+        split_tokens(line.text, tokens);
+        if (tokens.size() < need)
+            fail(line.number, name + " has " + std::to_string(tokens.size()) + " coordinates (needs " +
+                                  (homogeneous ? "x y z w)" : "x y z)"));
+        float xyzw[4] = {0.0f, 0.0f, 0.0f, 1.0f};
+        for (size_t k = 0; k < need; ++k) {
+            if (!parse_coordinate(tokens[k], xyzw[k]))
+                fail(line.number, name + ": coordinate " + quote(tokens[k]) + " is not a number");
+        }
+        Vec3 p(xyzw[0], xyzw[1], xyzw[2]);
+        if (homogeneous) p = make_vec(double(p.x) / xyzw[3], double(p.y) / xyzw[3], double(p.z) / xyzw[3]);
+        if (!is_finite(p)) fail(line.number, name + " has a non-finite coordinate " + format_vec(p));
+        mesh.vertices.push_back(p);
+    }
+    for (uint64_t f = 0; f < face_count; ++f) {
+        const std::string name = "face " + std::to_string(f);
+        if (!next_line(line))
+            throw InputError(path + ": file ends after line " + std::to_string(line_no) + ", before " + name + " (of " +
+                             std::to_string(face_count) + "): truncated, or the header's counts are wrong");
+        split_tokens(line.text, tokens);
+        uint64_t n = 0;
+        if (!parse_u64(tokens[0], n)) fail(line.number, name + ": vertex count " + quote(tokens[0]) + " is not a number");
+        if (n < 3) fail(line.number, name + " has " + std::to_string(n) + " vertices (needs at least 3)");
+        if (tokens.size() - 1 < n)
+            fail(line.number, name + " has " + std::to_string(tokens.size() - 1) + " indices, its count says " +
+                                  std::to_string(n));
+        uint32_t corner[3] = {0, 0, 0};
+        for (uint64_t k = 0; k < n; ++k) {
+            const std::string_view token = tokens[1 + k];
+            uint64_t index = 0;
+            if (!parse_u64(token, index)) {
+                if (token.starts_with('-') && token.size() > 1 && parse_u64(token.substr(1), index))
+                    fail(line.number, name + ": vertex index " + std::string(token) + " out of range (" +
+                                          std::to_string(vertex_count) + " vertices)");
+                fail(line.number, name + ": vertex index " + quote(token) + " is not an integer");
+            }
+            if (index >= vertex_count)
+                fail(line.number, name + ": vertex index " + std::to_string(index) + " out of range (" +
+                                      std::to_string(vertex_count) + " vertices)");
+            if (k == 0) corner[0] = static_cast<uint32_t>(index);
+            corner[2] = static_cast<uint32_t>(index);
+            if (k >= 2) push_triangle(mesh, corner[0], corner[1], corner[2]);
+            corner[1] = corner[2];
+        }
+    }
+    if (next_line(line))
+        fail(line.number, "data after the last face: the header's counts are inconsistent with the file");
+    return mesh;
+}
+
+// ---------------------------------------------------------------------------
 // File formats by extension.
 
 struct FileFormat {
@@ -536,6 +850,11 @@ struct FileFormat {
 // To add a format, add a row here.
 constexpr FileFormat kFileFormats[] = {
     {".obj", "obj", &load_obj},
+    {".ply", "ply", &load_ply},
+    {".dae", "dae", &load_with_assimp},
+    {".gltf", "gltf", &load_with_assimp},
+    {".glb", "glb", &load_with_assimp},
+    {".off", "off", &load_off},
 };
 
 std::string lower(std::string s) {

@@ -71,10 +71,15 @@ private:
 };
 
 // Starts a span at construction and adds it at destruction, when `log` is
-// not null.
+// not null. Building with -DCANOPY_TRACE=0 (Meson: -Dtrace=false) compiles
+// tracing out entirely, to measure what the disabled branch costs.
+#ifndef CANOPY_TRACE
+#define CANOPY_TRACE 1
+#endif
 class TraceScope {
 public:
-    TraceScope(TraceLog* log, const NodeTask& t, uint32_t worker, TraceSpan::Kind kind) : log_(log) {
+    TraceScope(TraceLog* log, const NodeTask& t, uint32_t worker, TraceSpan::Kind kind)
+        : log_(CANOPY_TRACE ? log : nullptr) {
         if (!log_) return;
         span_ = TraceSpan{log_->now_ns(), 0, worker, 0, t.begin, t.size(), t.parent_begin,
                           static_cast<uint8_t>(t.depth), t.rights, static_cast<uint8_t>(t.is_right), kind};

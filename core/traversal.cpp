@@ -175,15 +175,21 @@ struct BoxRay {
 // of the absolute rounding error of t). Only pruning is affected; the hits
 // themselves are decided by the triangle test on the ray's own [tmin, tmax],
 // so the result is the brute-force result.
+// Relative padding cannot cover subnormal distances, whose roundoff is
+// absolute (up to half of 2^-149 per operation): both the ray's interval and
+// every slab's far distance are also widened by the smallest normal float,
+// which is negligible for any t of normal size and stops pruning altogether
+// among boxes that are all within subnormal distances.
 constexpr float kSlack = 0x1p-16f;
+constexpr float kAbsSlack = std::numeric_limits<float>::min();
 
 float widen_up(float t, const BoxRay& r) {
     if (!std::isfinite(t)) return t;
-    return t + kSlack * (std::fabs(t) + r.scale);
+    return t + kSlack * (std::fabs(t) + r.scale) + kAbsSlack;
 }
 float widen_down(float t, const BoxRay& r) {
     if (!std::isfinite(t)) return t;
-    return t - kSlack * (std::fabs(t) + r.scale);
+    return t - kSlack * (std::fabs(t) + r.scale) - kAbsSlack;
 }
 
 // True when the ray meets the node's box within [lo, hi]; tnear is then the
@@ -198,7 +204,7 @@ bool box_hit(const Node& n, const BoxRay& r, float lo, float hi, float& tnear) {
         const float t1 = (n.max[a] - r.org[a]) * r.inv[a];
         const float near = r.neg[a] ? t1 : t0;
         const float f = r.neg[a] ? t0 : t1;
-        const float far = f * (f < 0.0f ? kFarScaleNeg : kFarScale);
+        const float far = f * (f < 0.0f ? kFarScaleNeg : kFarScale) + kAbsSlack;
         if (near > tn) tn = near;
         if (far < tf) tf = far;
     }

@@ -121,14 +121,17 @@ TEST(Equivalence, DefaultTuningOnLargerScenes) {
         opt.threads = 1;
         const Bvh ref = build<Sequential>(view, opt);
         ASSERT_TRUE(validate(ref, view, opt).ok()) << spec;
-        for (const SchedulerEntry& s : tested_schedulers())
+        for (const SchedulerEntry& s : tested_schedulers()) {
             for (uint32_t threads : {2u, 4u}) {
                 opt.threads = threads;
                 BuildStats stats;
                 expect_same(ref, s.build_triangles(view, opt, &stats),
                             std::string(spec) + " " + s.name + " threads " + std::to_string(threads));
-                if (std::string(s.name) != "sequential") EXPECT_GT(stats.skipped.parallel_nodes, 0u) << s.name;
+                if (std::string(s.name) != "sequential") {
+                    EXPECT_GT(stats.skipped.parallel_nodes, 0u) << s.name;
+                }
             }
+        }
     }
 }
 

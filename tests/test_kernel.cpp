@@ -169,46 +169,42 @@ TEST(KernelBinMapper, ZeroExtentAxisIsNotValid) {
     for (int a = 0; a < 3; ++a) EXPECT_EQ(p.scale[a], 0.0f);
 }
 
-TEST(KernelBinMapper, SubnormalExtentIsNotValid) {
+TEST(KernelBinMapper, SubnormalExtentsAreBinnedExactly) {
     const float dm = std::numeric_limits<float>::denorm_min();
-    // 0.99 * bins / extent overflows float for these extents at every bin
-    // count: the axis must be skipped, with no inf or NaN left in the scale.
-    for (const float e : {dm, 2 * dm, 1000 * dm, 1e-42f}) {
+    // bins / extent overflows float for these extents: the mapper rescales
+    // the offset by a power of two first, so the axis is still binned, with
+    // a finite scale, the lowest centroid in bin 0 and the highest in the
+    // last bin, and nothing out of range.
+    for (const float e : {dm, 2 * dm, 1000 * dm, 1e-42f, 1e-39f}) {
         ASSERT_TRUE(std::fpclassify(e) == FP_SUBNORMAL) << e;
-        for (uint32_t bins : {2u, 16u, 256u}) {
+        for (uint32_t bins : {2u, 3u, 16u, 256u}) {
             const BinMapper m = BinMapper::make(Box{Vec3(0, 0, 0), Vec3(e, 1, 0)}, bins);
-            EXPECT_FALSE(m.valid[0]) << e << " bins " << bins;
+            EXPECT_TRUE(m.valid[0]) << e << " bins " << bins;
             EXPECT_TRUE(m.valid[1]);
             EXPECT_FALSE(m.valid[2]);
             for (int a = 0; a < 3; ++a) {
                 EXPECT_TRUE(std::isfinite(m.scale[a])) << e << " axis " << a;
-                EXPECT_FALSE(std::isnan(m.scale[a]));
+                EXPECT_TRUE(std::isfinite(m.prescale[a])) << e << " axis " << a;
             }
-            EXPECT_EQ(m.scale[0], 0.0f);
-            // A point of the axis maps to bin 0 (not NaN garbage).
-            EXPECT_EQ(bin_index(m, e, 0), 0u);
+            EXPECT_EQ(m.prescale[1], 1.0f);  // ordinary extents keep the plain mapping
+            EXPECT_EQ(bin_index(m, 0.0f, 0), 0u);
+            EXPECT_EQ(bin_index(m, e, 0), bins - 1) << e << " bins " << bins;
+            // Monotone over every representable value in [0, e] (up to 1000 steps).
+            uint32_t prev = 0;
+            for (float x = 0.0f; x <= e; x = std::nextafter(x, 1.0f)) {
+                const uint32_t k = bin_index(m, x, 0);
+                EXPECT_GE(k, prev);
+                EXPECT_LT(k, bins);
+                prev = k;
+                if (x > 1000 * dm) break;
+            }
         }
-        // A subnormal extent around zero.
+        // A subnormal extent around zero: both halves are reached.
         const BinMapper s = BinMapper::make(Box{Vec3(-e, 0, 0), Vec3(e, 0, 0)}, 16);
-        EXPECT_FALSE(s.any_valid()) << e;
-        EXPECT_EQ(s.scale[0], 0.0f);
-    }
-    // Larger subnormal extents (up to FLT_MIN) may give a finite scale for
-    // small bin counts; whenever an axis is valid its scale is finite and
-    // the mapping is still exact at both ends.
-    for (float e = dm; e < FLT_MIN; e *= 4.0f) {
-        for (uint32_t bins : {2u, 3u, 16u, 256u}) {
-            const BinMapper m = BinMapper::make(Box{Vec3(0, 0, 0), Vec3(e, 0, 0)}, bins);
-            EXPECT_TRUE(std::isfinite(m.scale[0])) << e << " bins " << bins;
-            if (m.valid[0]) {
-                EXPECT_GT(m.scale[0], 0.0f);
-                EXPECT_EQ(bin_index(m, 0.0f, 0), 0u);
-                EXPECT_GT(bin_index(m, e, 0), 0u);
-                EXPECT_LT(bin_index(m, e, 0), bins);
-            } else {
-                EXPECT_EQ(m.scale[0], 0.0f);
-            }
-        }
+        EXPECT_TRUE(s.valid[0]) << e;
+        EXPECT_FALSE(s.valid[1]);
+        EXPECT_EQ(bin_index(s, -e, 0), 0u);
+        EXPECT_EQ(bin_index(s, e, 0), 15u);
     }
 }
 

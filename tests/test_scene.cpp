@@ -261,8 +261,8 @@ TEST(SceneSpecs, DefaultScene) {
 }
 
 TEST(SceneSpecs, UnsupportedFormats) {
-    expect_input_error([] { load_scene("/nonexistent/bunny.ply"); }, {"/nonexistent/bunny.ply", "not supported"});
-    expect_input_error([] { load_scene("scene.DAE"); }, {"scene.DAE", "not supported"});
+    expect_input_error([] { load_scene("/nonexistent/bunny.stl"); }, {"/nonexistent/bunny.stl", "not supported"});
+    expect_input_error([] { load_scene("scene.3DS"); }, {"scene.3DS", "not supported"});
     expect_input_error([] { load_scene("noextension"); }, {"noextension"});
     // .obj goes to the OBJ loader, which then reports the missing file.
     expect_input_error([] { load_scene("/nonexistent/dir/missing.OBJ"); },

@@ -13,7 +13,7 @@ int main(int argc, char** argv) {
     CLI::App app{"canopy: parallel binned-SAH BVH builder"};
     app.require_subcommand(1);
     app.set_version_flag("--version", "canopy 0.1.0");
-    std::vector<Runner> verbs = {add_build(app), add_info(app)};
+    std::vector<Runner> verbs = {add_build(app), add_info(app), add_bench(app), add_sweep(app), add_render(app)};
     try {
         app.parse(argc, argv);
     } catch (const CLI::CallForHelp& e) {

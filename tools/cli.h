@@ -43,5 +43,8 @@ std::vector<uint32_t> parse_list(const std::string& text, const std::string& wha
 // The verbs.
 Runner add_build(CLI::App& app);
 Runner add_info(CLI::App& app);
+Runner add_bench(CLI::App& app);
+Runner add_sweep(CLI::App& app);
+Runner add_render(CLI::App& app);
 
 }  // namespace canopy::cli

@@ -56,6 +56,8 @@ int run_build(const BuildArgs& a) {
         }
         bvh = std::move(fresh);
     }
+    if (!a.trace.empty() && !CANOPY_TRACE)
+        throw UsageError("--trace: this canopy was built with tracing compiled out (-Dtrace=false)");
     if (!a.trace.empty()) {
         // One more build, traced, after the timed ones (so tracing never
         // shows in build_ms); it must give the same tree.

@@ -33,7 +33,7 @@ int run_info(const std::string& spec) {
 Runner add_info(CLI::App& app) {
     auto scene = std::make_shared<std::string>();
     CLI::App* info = app.add_subcommand("info", "Describe a scene: counts, bounds, degenerate triangles");
-    info->add_option("scene", *scene, "Mesh file or gen:NAME:COUNT[:SEED]");
+    info->add_option("scene", *scene, "Mesh file (.obj .ply .off .dae .gltf .glb) or gen:NAME:COUNT[:SEED]");
     return [scene, info]() { return *info ? run_info(*scene) : -1; };
 }
 

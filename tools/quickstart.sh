@@ -33,5 +33,5 @@ ninja -C build >/dev/null
 echo "canopy: built ./build/tools/canopy" >&2
 
 if [ "${1:-}" != "--no-run" ]; then
-  ./build/tools/canopy build
+  ./build/tools/canopy bench
 fi

@@ -1,6 +1,6 @@
 // A tiny program built against an installed canopy through pkg-config.
-#include <canopy/core/scene.h>
-#include <canopy/schedulers/registry.h>
+#include <core/scene.h>  // installed under include/canopy; canopy.pc adds it
+#include <schedulers/registry.h>
 
 #include <cstdio>
 

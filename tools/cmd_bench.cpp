@@ -1,0 +1,349 @@
+// canopy bench: every scheduler compiled in, and Embree 3 when it is, on the
+// same scenes and thread counts, alternated round-robin; one table per scene.
+#include "cli.h"
+#include "core/bvh.h"
+#include "core/sah.h"
+#include "core/scene.h"
+#include "core/validate.h"
+#if CANOPY_HAVE_EMBREE
+#include "embree_compare.h"
+#endif
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <optional>
+#include <thread>
+
+namespace canopy::cli {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+struct BenchArgs {
+    std::vector<std::string> scenes;
+    std::string threads;
+    uint32_t repeat = 7;
+    uint32_t gap_ms = 50;
+    std::string csv;
+    uint32_t bins = BuildOptions{}.bins;
+    uint32_t leaf = BuildOptions{}.max_leaf;
+};
+
+enum class Kind { kCanopy, kEmbreeScene, kEmbreeBuilder };
+
+struct Builder {
+    std::string name;
+    Kind kind;
+    const SchedulerEntry* sched = nullptr;  // kCanopy
+};
+
+// One builder at one thread count.
+struct Measure {
+    std::vector<double> ms;
+    std::optional<double> sah;
+    double median = 0.0;
+    double min = 0.0;
+};
+
+std::string default_threads() {
+    const unsigned hw = std::max(1u, std::thread::hardware_concurrency());
+    return hw > 1 ? "1," + std::to_string(hw) : "1";
+}
+
+std::string csv_field(const std::string& s) {
+    if (s.find_first_of(",\"\n") == std::string::npos) return s;
+    std::string q = "\"";
+    for (char c : s) q += c == '"' ? std::string("\"\"") : std::string(1, c);
+    return q + "\"";
+}
+
+std::string fmt(const char* f, double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, f, v);
+    return buf;
+}
+
+// Progress on stderr, only when stderr is a terminal.
+struct Progress {
+    bool on = isatty(STDERR_FILENO) != 0;
+    void show(const std::string& text) const {
+        if (on) std::fprintf(stderr, "\r\033[Kcanopy bench: %s", text.c_str());
+    }
+    void clear() const {
+        if (on) std::fprintf(stderr, "\r\033[K");
+    }
+};
+
+class Bench {
+public:
+    explicit Bench(const BenchArgs& a) : a_(a) {
+        for (const auto& e : schedulers()) builders_.push_back({e.name, Kind::kCanopy, &e});
+#if CANOPY_HAVE_EMBREE
+        builders_.push_back({"embree_scene", Kind::kEmbreeScene});
+        if (a.leaf <= embree::kMaxBuilderLeaf)
+            builders_.push_back({"embree_builder", Kind::kEmbreeBuilder});
+        else
+            std::cerr << "canopy bench: --leaf " << a.leaf << " exceeds what rtcBuildBVH allows ("
+                      << embree::kMaxBuilderLeaf << "): embree_builder left out\n";
+#endif
+        const unsigned hw = std::max(1u, std::thread::hardware_concurrency());
+        for (uint32_t t : parse_list(a.threads, "--threads")) threads_.push_back(t ? t : hw);
+        std::sort(threads_.begin(), threads_.end());
+        threads_.erase(std::unique(threads_.begin(), threads_.end()), threads_.end());
+        options_.bins = a.bins;
+        options_.max_leaf = a.leaf;
+        options_.check();
+    }
+
+    int run() {
+        std::ofstream csv;
+        if (!a_.csv.empty()) {
+            csv.open(a_.csv);
+            if (!csv) throw Error("cannot write '" + a_.csv + "'");
+            csv << "scene,triangles,threads,builder,median_ms,min_ms,sah,ratio_vs_embree_scene,speedup_vs_T1\n";
+        }
+        std::vector<std::string> specs = a_.scenes;
+        if (specs.empty()) specs.push_back("");
+        for (const std::string& spec : specs) {
+            int status = kOk;
+            try {
+                status = run_scene(spec, csv);
+            } catch (...) {
+                progress_.clear();  // main() prints the error on a clean line
+                throw;
+            }
+            if (status != kOk) return status;
+        }
+        if (csv.is_open()) {
+            csv.flush();
+            if (!csv) throw Error("cannot write '" + a_.csv + "'");
+        }
+        return kOk;
+    }
+
+private:
+    void print_header() const {
+        std::printf("canopy bench: build times in ms, medians of %u alternated runs (builders round-robin, "
+                    "after one warm-up round, %u ms idle before each run); bins %u, leaf %u\n",
+                    a_.repeat, a_.gap_ms, a_.bins, a_.leaf);
+#if CANOPY_HAVE_EMBREE
+        std::printf("  vs_embree: median / median of Embree %s's scene build (rtcCommitScene) at the same "
+                    "threads (< 1: faster than Embree)\n",
+                    embree::version().c_str());
+        std::printf("  embree_builder: Embree's rtcBuildBVH, binary, same leaf cap, triangle boxes given "
+                    "(not timed); embree_scene has its own wide BVH: no SAH\n");
+#else
+        std::printf("  Embree not compiled in: no Embree rows, no vs_embree ratios\n");
+#endif
+        std::printf("  speedup: median at %u thread(s) / median at this thread count, per builder; "
+                    "SAH: canopy's cost (half areas, costs 1)\n",
+                    threads_.front());
+        std::fflush(stdout);
+    }
+
+    // The warm-up build of a builder (untimed): validates canopy's trees and
+    // keeps them to compare the timed ones with; gives the SAH.
+    void warm_up(const Builder& b, Measure& m, const TriangleView& view, Bvh& reference) {
+        switch (b.kind) {
+            case Kind::kCanopy: {
+                reference = b.sched->build_triangles(view, options_, nullptr);
+                const ValidationReport report = validate(reference, view, options_);
+                if (!report.ok())
+                    throw Invalid("scheduler " + b.name + " at " + std::to_string(options_.threads) +
+                                  " threads built an invalid tree: " + report.summary());
+                m.sah = sah_cost(reference);
+                break;
+            }
+#if CANOPY_HAVE_EMBREE
+            case Kind::kEmbreeScene: embree::scene_build_ms(*device_, *input_); break;
+            case Kind::kEmbreeBuilder: {
+                Bvh tree;
+                embree::builder_ms(*device_, *input_, options_.max_leaf, options_.max_depth, &tree);
+                const ValidationReport report = validate(tree, view, options_);
+                if (!report.ok())
+                    throw Invalid("Embree's rtcBuildBVH tree (converted) is not valid: " + report.summary());
+                m.sah = sah_cost(tree);
+                break;
+            }
+#else
+            default: break;
+#endif
+        }
+    }
+
+    double timed(const Builder& b, const TriangleView& view, const Bvh& reference) {
+        switch (b.kind) {
+            case Kind::kCanopy: {
+                Bvh fresh;  // freed after the timing
+                const auto t0 = Clock::now();
+                fresh = b.sched->build_triangles(view, options_, nullptr);
+                const auto t1 = Clock::now();
+                if (!(fresh == reference))
+                    throw Invalid("scheduler " + b.name + " at " + std::to_string(options_.threads) +
+                                  " threads: repeated builds differ");
+                return std::chrono::duration<double, std::milli>(t1 - t0).count();
+            }
+#if CANOPY_HAVE_EMBREE
+            case Kind::kEmbreeScene: return embree::scene_build_ms(*device_, *input_);
+            case Kind::kEmbreeBuilder:
+                return embree::builder_ms(*device_, *input_, options_.max_leaf, options_.max_depth, nullptr);
+#endif
+            default: return 0.0;
+        }
+    }
+
+    struct Invalid : Error {
+        explicit Invalid(const std::string& w) : Error(w) {}
+    };
+
+    int run_scene(const std::string& spec, std::ofstream& csv) {
+        progress_.show("loading " + (spec.empty() ? std::string("the default scene") : spec));
+        Scene scene = spec.empty() ? default_scene() : load_scene(spec);
+        const TriangleView view = scene.mesh.view();
+        const size_t n = view.triangle_count();
+        if (n == 0) {
+            progress_.clear();
+            if (!header_printed_) print_header();
+            header_printed_ = true;
+            std::printf("\nscene %s: no triangles, skipped\n", scene.name.c_str());
+            return kOk;
+        }
+#if CANOPY_HAVE_EMBREE
+        input_ = std::make_unique<embree::Input>(view);
+#endif
+        const size_t nb = builders_.size();
+        // results[t][b]
+        std::vector<std::vector<Measure>> results(threads_.size(), std::vector<Measure>(nb));
+        try {
+            for (size_t ti = 0; ti < threads_.size(); ++ti) {
+                const uint32_t T = threads_[ti];
+                options_.threads = T;
+#if CANOPY_HAVE_EMBREE
+                device_.reset();  // one device at a time (its thread limit is process-wide)
+                device_ = std::make_unique<embree::Device>(T);
+#endif
+                std::vector<Bvh> reference(nb);
+                for (size_t b = 0; b < nb; ++b) {
+                    progress_.show(scene.name + ", " + std::to_string(T) + " threads, warm-up " + builders_[b].name);
+                    warm_up(builders_[b], results[ti][b], view, reference[b]);
+                }
+                for (uint32_t r = 0; r < a_.repeat; ++r) {
+                    progress_.show(scene.name + ", " + std::to_string(T) + " threads, round " +
+                                   std::to_string(r + 1) + "/" + std::to_string(a_.repeat));
+                    // Round-robin, starting one builder later each round so
+                    // no builder always follows the same one.
+                    for (size_t k = 0; k < nb; ++k) {
+                        const size_t b = (r + k) % nb;
+                        // Idle first, so that threads the previous builder
+                        // left spinning (libgomp's team after a parallel
+                        // region, TBB's workers) are asleep and do not take
+                        // this builder's cores.
+                        if (a_.gap_ms) std::this_thread::sleep_for(std::chrono::milliseconds(a_.gap_ms));
+                        results[ti][b].ms.push_back(timed(builders_[b], view, reference[b]));
+                    }
+                }
+                for (Measure& m : results[ti]) {
+                    m.median = median(m.ms);
+                    m.min = *std::min_element(m.ms.begin(), m.ms.end());
+                }
+            }
+        } catch (const Invalid& e) {
+            progress_.clear();
+            std::cerr << "canopy bench: " << scene.name << ": " << e.what() << "\n";
+            return kInvalid;
+        }
+#if CANOPY_HAVE_EMBREE
+        device_.reset();
+        input_.reset();
+#endif
+        progress_.clear();
+        print_scene(scene.name, n, results, csv);
+        return kOk;
+    }
+
+    void print_scene(const std::string& name, size_t n, const std::vector<std::vector<Measure>>& results,
+                     std::ofstream& csv) {
+        if (!header_printed_) print_header();
+        header_printed_ = true;
+        std::optional<size_t> embree_scene;
+        for (size_t b = 0; b < builders_.size(); ++b)
+            if (builders_[b].kind == Kind::kEmbreeScene) embree_scene = b;
+        size_t width = 7;
+        for (const Builder& b : builders_) width = std::max(width, b.name.size());
+
+        std::printf("\nscene %s: %zu triangles\n", name.c_str(), n);
+        std::printf("%7s  %-*s %10s %10s %9s %10s %8s\n", "threads", int(width), "builder", "median_ms", "min_ms",
+                    "SAH", "vs_embree", "speedup");
+        for (size_t ti = 0; ti < threads_.size(); ++ti) {
+            for (size_t b = 0; b < builders_.size(); ++b) {
+                const Measure& m = results[ti][b];
+                std::optional<double> ratio, speedup;
+                if (embree_scene && results[ti][*embree_scene].median > 0.0)
+                    ratio = m.median / results[ti][*embree_scene].median;
+                if (m.median > 0.0) speedup = results[0][b].median / m.median;
+                std::printf("%7u  %-*s %10.3f %10.3f %9s %10s %8s\n", threads_[ti], int(width),
+                            builders_[b].name.c_str(), m.median, m.min,
+                            m.sah ? fmt("%.4f", *m.sah).c_str() : "-",
+                            ratio ? fmt("%.2fx", *ratio).c_str() : "-",
+                            speedup ? fmt("%.2fx", *speedup).c_str() : "-");
+                if (csv.is_open()) {
+                    csv << csv_field(name) << ',' << n << ',' << threads_[ti] << ',' << builders_[b].name << ','
+                        << fmt("%.4f", m.median) << ',' << fmt("%.4f", m.min) << ','
+                        << (m.sah ? fmt("%.6f", *m.sah) : "") << ',' << (ratio ? fmt("%.4f", *ratio) : "") << ','
+                        << (speedup ? fmt("%.4f", *speedup) : "") << '\n';
+                }
+            }
+        }
+        std::fflush(stdout);
+    }
+
+    const BenchArgs& a_;
+    std::vector<Builder> builders_;
+    std::vector<uint32_t> threads_;
+    BuildOptions options_;
+    Progress progress_;
+    bool header_printed_ = false;
+#if CANOPY_HAVE_EMBREE
+    std::unique_ptr<embree::Device> device_;
+    std::unique_ptr<embree::Input> input_;
+#endif
+};
+
+}  // namespace
+
+Runner add_bench(CLI::App& app) {
+    auto a = std::make_shared<BenchArgs>();
+    a->threads = default_threads();
+    CLI::App* bench = app.add_subcommand(
+        "bench", "Compare the schedulers (and Embree 3, when compiled in) on scenes and thread counts");
+    bench->add_option("scene", a->scenes, "Mesh files or gen:NAME:COUNT[:SEED] (default: gen:sphere:100000)");
+    bench->add_option("--threads", a->threads, "Thread counts, comma-separated (0 = all hardware threads)")
+        ->capture_default_str();
+    bench->add_option("--repeat", a->repeat, "Timed rounds; the tables show medians")
+        ->capture_default_str()
+        ->check(CLI::Range(1u, 100000u));
+    bench->add_option("--gap", a->gap_ms,
+                      "Idle milliseconds before each timed build, so that the previous builder's spinning "
+                      "threads are asleep")
+        ->capture_default_str()
+        ->check(CLI::Range(0u, 10000u));
+    bench->add_option("--csv", a->csv,
+                      "Also write one CSV row per (scene, threads, builder) to FILE "
+                      "(speedup_vs_T1: against the smallest thread count)");
+    bench->add_option("--bins", a->bins, "Bins per axis (2-256)")->capture_default_str();
+    bench->add_option("--leaf", a->leaf, "Largest leaf (1-255)")->capture_default_str();
+    return [a, bench]() {
+        if (!*bench) return -1;
+        Bench b(*a);
+        return b.run();
+    };
+}
+
+}  // namespace canopy::cli
