@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <string>
+#include <string_view>
 #include <thread>
 #include <vector>
 
@@ -37,6 +38,18 @@ BuildOptions small_tuning(uint32_t bins, uint32_t threads) {
     return o;
 }
 
+// True when `name` is one of the comma-separated names in `list`.
+bool listed(const char* list, const char* name) {
+    const std::string_view l(list), n(name);
+    size_t start = 0;
+    while (start <= l.size()) {
+        const size_t comma = std::min(l.find(',', start), l.size());
+        if (l.substr(start, comma - start) == n) return true;
+        start = comma + 1;
+    }
+    return false;
+}
+
 // The schedulers under test: all compiled in, or those named in the
 // environment variable CANOPY_TEST_SCHEDULERS ("tbb,sequential"), which the
 // ThreadSanitizer run uses.
@@ -44,7 +57,7 @@ std::vector<SchedulerEntry> tested_schedulers() {
     const char* env = std::getenv("CANOPY_TEST_SCHEDULERS");
     std::vector<SchedulerEntry> out;
     for (const SchedulerEntry& s : schedulers())
-        if (!env || ("," + std::string(env) + ",").find("," + std::string(s.name) + ",") != std::string::npos)
+        if (!env || listed(env, s.name))
             out.push_back(s);
     return out;
 }

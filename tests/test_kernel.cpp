@@ -909,3 +909,18 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
     EXPECT_TRUE(same_records(buf.a, input));
     EXPECT_TRUE(same_records(buf.b, sentinels(200)));
 }
+
+TEST(KernelSimd, CountsConvertAsFloatOfUint32) {
+    // evaluate() converts bin counts four lanes at a time; it must round as
+    // float(uint32_t) does, above 2^24 and above 2^31 too.
+    const uint32_t values[] = {0u, 1u, 3u, 16777217u, 33554435u, 33554437u, 2147483647u, 2147483648u,
+                               2147483649u, 2147483715u, 2147483776u, 3000000001u, 4294967167u, 4294967295u};
+    for (const uint32_t v : values) {
+        const __m128i n = _mm_set_epi32(0, 1, int32_t(v), 7);
+        alignas(16) float f[4];
+        _mm_store_ps(f, canopy::simd::to_float(n));
+        EXPECT_EQ(f[1], float(v)) << v;
+        EXPECT_EQ(f[0], 7.0f);
+        EXPECT_EQ(f[2], 1.0f);
+    }
+}
