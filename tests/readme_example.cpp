@@ -9,7 +9,7 @@
 
 int main() {
     canopy::TriangleMesh mesh = canopy::load_scene("gen:sphere:20000").mesh;
-    canopy::BuildOptions options;  // 16 bins, leaves of at most 4, all threads
+    canopy::BuildOptions options;  // 32 bins, leaves of at most 4, all threads
     canopy::Bvh bvh = canopy::build<canopy::Sequential>(mesh.view(), options);
     canopy::Ray ray{{0, 0, -5}, {0, 0, 1}};
     canopy::Hit hit = canopy::intersect_closest(bvh, mesh.view(), ray);
