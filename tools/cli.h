@@ -40,6 +40,19 @@ double median(std::vector<double> v);
 // Parses "1,2,4" into numbers (UsageError on junk).
 std::vector<uint32_t> parse_list(const std::string& text, const std::string& what);
 
+// One line of progress on stderr, redrawn in place, only when stderr is a
+// terminal (pipes and files stay clean).
+class Progress {
+public:
+    explicit Progress(std::string verb);
+    void show(const std::string& text) const;
+    void clear() const;
+
+private:
+    std::string verb_;
+    bool on_;
+};
+
 // The verbs.
 Runner add_build(CLI::App& app);
 Runner add_info(CLI::App& app);

@@ -1,6 +1,9 @@
 #include "cli.h"
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cstdio>
 #include <sstream>
 
 namespace canopy::cli {
@@ -45,6 +48,16 @@ std::vector<uint32_t> parse_list(const std::string& text, const std::string& wha
     }
     if (out.empty()) throw UsageError(what + ": empty list");
     return out;
+}
+
+Progress::Progress(std::string verb) : verb_(std::move(verb)), on_(isatty(STDERR_FILENO) != 0) {}
+
+void Progress::show(const std::string& text) const {
+    if (on_) std::fprintf(stderr, "\r\033[Kcanopy %s: %s", verb_.c_str(), text.c_str());
+}
+
+void Progress::clear() const {
+    if (on_) std::fprintf(stderr, "\r\033[K");
 }
 
 }  // namespace canopy::cli

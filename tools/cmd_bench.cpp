@@ -9,7 +9,6 @@
 #include "embree_compare.h"
 #endif
 
-#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -69,17 +68,6 @@ std::string fmt(const char* f, double v) {
     std::snprintf(buf, sizeof buf, f, v);
     return buf;
 }
-
-// Progress on stderr, only when stderr is a terminal.
-struct Progress {
-    bool on = isatty(STDERR_FILENO) != 0;
-    void show(const std::string& text) const {
-        if (on) std::fprintf(stderr, "\r\033[Kcanopy bench: %s", text.c_str());
-    }
-    void clear() const {
-        if (on) std::fprintf(stderr, "\r\033[K");
-    }
-};
 
 class Bench {
 public:
@@ -308,7 +296,7 @@ private:
     std::vector<Builder> builders_;
     std::vector<uint32_t> threads_;
     BuildOptions options_;
-    Progress progress_;
+    Progress progress_{"bench"};
     bool header_printed_ = false;
 #if CANOPY_HAVE_EMBREE
     std::unique_ptr<embree::Device> device_;

@@ -175,7 +175,8 @@ bool same_hit(const Hit& a, const Hit& b) {
 // when a tree is invalid or finds other hits than the exact tree.
 bool run_scene(const SweepArgs& a, const std::string& spec, const SchedulerEntry& sched,
                const std::vector<uint32_t>& bins_list, const std::vector<uint32_t>& threads_list,
-               SceneResult& out) {
+               const Progress& progress, SceneResult& out) {
+    progress.show("loading " + spec);
     Scene scene = load_scene(spec);
     const TriangleView view = scene.mesh.view();
     out.name = scene.name;
@@ -188,6 +189,7 @@ bool run_scene(const SweepArgs& a, const std::string& spec, const SchedulerEntry
 
     // The exact tree, and the ray set (its hits are the reference).
     Row exact;
+    progress.show(scene.name + ": the exact sweep tree");
     const auto t0 = Clock::now();
     const Bvh ref = build_sweep_sah(view, base);
     exact.build_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
@@ -211,6 +213,8 @@ bool run_scene(const SweepArgs& a, const std::string& spec, const SchedulerEntry
             opt.bins = bins;
             opt.threads = threads_list[ti];
             opt.check();
+            progress.show(scene.name + ": bins " + std::to_string(bins) + ", " + std::to_string(threads_list[ti]) +
+                          " thread(s)");
             std::vector<double> times;
             for (uint32_t r = 0; r < a.repeat; ++r) {
                 Bvh fresh;
@@ -448,9 +452,16 @@ int run_sweep(const SweepArgs& a) {
 
     std::vector<SceneResult> results;
     bool ok = true;
+    const Progress progress("sweep");
     for (const std::string& spec : specs) {
         SceneResult res;
-        ok = run_scene(a, spec, sched, bins_list, threads_list, res) && ok;
+        try {
+            ok = run_scene(a, spec, sched, bins_list, threads_list, progress, res) && ok;
+        } catch (...) {
+            progress.clear();  // main() prints the error on a clean line
+            throw;
+        }
+        progress.clear();
         if (res.rows.empty()) return kInvalid;
         print_table(res, threads_list, a, sched.name);
         results.push_back(std::move(res));
