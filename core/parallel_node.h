@@ -13,6 +13,7 @@
 #pragma once
 
 #include "kernel.h"
+#include "trace.h"
 
 #include <algorithm>
 #include <cstdint>
@@ -26,6 +27,7 @@ public:
     static constexpr uint32_t kBinChunk = 32768;  // records per binning chunk
 
     ParallelNode(const KernelContext& ctx, const NodeTask& t) : ctx_(ctx), t_(t) {}
+    const NodeTask& task() const { return t_; }
 
     // Whether the node is (still) going to split; read it after the serial
     // phases, from any thread.
@@ -165,19 +167,26 @@ private:
 // team every thread calls this (for_each = orphaned `omp for`, serial =
 // `omp single`); elsewhere one thread calls it and serial(fn) is fn().
 // Returns whether the node split (children written to `children`, which
-// in an OpenMP team must be shared).
+// in an OpenMP team must be shared). With a trace log (given by one caller
+// only), each phase becomes a span on that caller's track: the parallel
+// ones (bin, count, scatter) last until the whole team is done.
 template <class ForEach, class Serial>
 bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip, ForEach&& for_each,
-                       Serial&& serial) {
-    serial([&] { pn.start(skip); });
+                       Serial&& serial, TraceLog* log = nullptr, uint32_t worker = 0) {
+    const auto phase = [&](TraceSpan::Kind kind, auto&& body) {
+        const TraceScope span(log, pn.task(), worker, kind);
+        body();
+    };
+    phase(TraceSpan::Start, [&] { serial([&] { pn.start(skip); }); });
     if (!pn.splits()) return false;
-    for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); });
-    serial([&] { pn.decide(); });
+    phase(TraceSpan::Bin, [&] { for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); }); });
+    phase(TraceSpan::Evaluate, [&] { serial([&] { pn.decide(); }); });
     if (!pn.splits()) return false;
-    for_each(pn.blocks(), [&](uint32_t i) { pn.count_block(i); });
-    serial([&] { pn.prefix(); });
-    if (pn.moves()) for_each(pn.blocks(), [&](uint32_t i) { pn.scatter_block(i); });
-    serial([&] { pn.finish(children); });
+    phase(TraceSpan::Count, [&] { for_each(pn.blocks(), [&](uint32_t i) { pn.count_block(i); }); });
+    phase(TraceSpan::Prefix, [&] { serial([&] { pn.prefix(); }); });
+    if (pn.moves())
+        phase(TraceSpan::Scatter, [&] { for_each(pn.blocks(), [&](uint32_t i) { pn.scatter_block(i); }); });
+    phase(TraceSpan::Finish, [&] { serial([&] { pn.finish(children); }); });
     return true;
 }
 

@@ -13,7 +13,7 @@ void write_chrome_trace(const TraceLog& log, const std::string& path, const std:
                         uint32_t threads) {
     std::ofstream out(path, std::ios::trunc);
     if (!out) throw Error(path + ": cannot open for writing");
-    static const char* kinds[] = {"task", "inline", "parallel"};
+    const auto& kinds = TraceSpan::kKindNames;
     std::set<uint32_t> workers;
     for (const TraceSpan& s : log.spans()) workers.insert(s.worker);
     out << "{\"displayTimeUnit\":\"ms\",\"otherData\":{\"scheduler\":\"" << scheduler
@@ -26,10 +26,16 @@ void write_chrome_trace(const TraceLog& log, const std::string& path, const std:
     char buf[512];
     for (const TraceSpan& s : log.spans()) {
         const double ts = double(s.start_ns) / 1000.0, dur = double(s.end_ns - s.start_ns) / 1000.0;
+        const bool phase = s.kind >= TraceSpan::Start;
+        char name[64];
+        if (phase)
+            std::snprintf(name, sizeof name, "node %u: %s", s.node, kinds[s.kind]);
+        else
+            std::snprintf(name, sizeof name, "node %u", s.node);
         std::snprintf(buf, sizeof buf,
-                      ",\n{\"name\":\"node %u\",\"cat\":\"%s\",\"ph\":\"X\",\"pid\":1,\"tid\":%u,\"ts\":%.3f,"
+                      ",\n{\"name\":\"%s\",\"cat\":\"%s\",\"ph\":\"X\",\"pid\":1,\"tid\":%u,\"ts\":%.3f,"
                       "\"dur\":%.3f,\"args\":{\"node\":%u,\"primitives\":%u,\"level\":%u,\"mode\":\"%s\"}}",
-                      s.node, kinds[s.kind], s.worker, ts, dur, s.node, s.count, unsigned(s.depth),
+                      name, phase ? "phase" : kinds[s.kind], s.worker, ts, dur, s.node, s.count, unsigned(s.depth),
                       kinds[s.kind]);
         out << buf;
     }

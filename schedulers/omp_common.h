@@ -71,7 +71,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
             const TraceScope trace(wk.id == 0 ? ctx.trace : nullptr, top.big[i], wk.id, TraceSpan::Parallel);
             run_parallel_node(
                 *top.node, top.kids, wk.skip, [&](uint32_t k, auto&& fn) { omp.for_each(k, fn); },
-                [&](auto&& fn) { omp.serial(fn); });
+                [&](auto&& fn) { omp.serial(fn); }, wk.id == 0 ? ctx.trace : nullptr, wk.id);
 #pragma omp single
             {
                 const bool split = top.node->splits();

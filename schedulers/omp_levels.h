@@ -49,7 +49,7 @@ struct OmpLevels {
                                            TraceSpan::Parallel);
                     run_parallel_node(
                         *lv.node, lv.big_kids, wk.skip, [&](uint32_t k, auto&& fn) { omp.for_each(k, fn); },
-                        [&](auto&& fn) { omp.serial(fn); });
+                        [&](auto&& fn) { omp.serial(fn); }, wk.id == 0 ? ctx.trace : nullptr, wk.id);
 #pragma omp single
                     {
                         const bool split = lv.node->splits();

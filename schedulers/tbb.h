@@ -69,7 +69,7 @@ private:
                                               for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
                                           });
                     },
-                    [](auto&& fn) { fn(); });
+                    [](auto&& fn) { fn(); }, ctx.trace, me().id);
                 me().records.push_back(NodeRecord::of(t, !split));
             } else {
                 split = sched::run_recorded(ctx, t, children, me());
