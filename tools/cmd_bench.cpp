@@ -209,6 +209,7 @@ private:
         const size_t nb = builders_.size();
         // results[t][b]
         std::vector<std::vector<Measure>> results(threads_.size(), std::vector<Measure>(nb));
+        Bvh canonical;  // the first canopy tree of this scene
         try {
             for (size_t ti = 0; ti < threads_.size(); ++ti) {
                 const uint32_t T = threads_[ti];
@@ -221,6 +222,13 @@ private:
                 for (size_t b = 0; b < nb; ++b) {
                     progress_.show(scene.name + ", " + std::to_string(T) + " threads, warm-up " + builders_[b].name);
                     warm_up(builders_[b], results[ti][b], view, reference[b]);
+                    // Every scheduler at every thread count builds the same tree.
+                    if (builders_[b].kind != Kind::kCanopy) continue;
+                    if (canonical.nodes.empty() && canonical.permutation.empty())
+                        canonical = reference[b];
+                    else if (!(reference[b] == canonical))
+                        throw Invalid("scheduler " + builders_[b].name + " at " + std::to_string(T) +
+                                      " threads built a different tree than the first canopy build");
                 }
                 for (uint32_t r = 0; r < a_.repeat; ++r) {
                     progress_.show(scene.name + ", " + std::to_string(T) + " threads, round " +
