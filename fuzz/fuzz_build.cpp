@@ -236,7 +236,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     for (size_t i = 0; i < boxes.size(); ++i) boxes[i] = Box{mesh.vertices[2 * i], mesh.vertices[2 * i + 1]};
     const std::span<const Box> span(boxes);
     const Expected want_boxes = expect_boxes(span, opt);
-    const std::optional<Bvh> box_ref = run(want_boxes, "sequential (boxes)", [&] { return build<Sequential>(span, opt); });
+    const std::optional<Bvh> box_ref =
+        run(want_boxes, "sequential (boxes)", [&] { return build<Sequential>(span, opt); });
     if (box_ref) {
         const ValidationReport report = validate(*box_ref, span, opt);
         if (!report.ok()) fuzz::fail("the box tree failed validation", report.summary());

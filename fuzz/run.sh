@@ -2,8 +2,9 @@
 # canopy fuzzing: builds the libFuzzer targets with clang (ASan + UBSan) in
 # ./build-fuzz and runs each for SECONDS (default 30), from a small seed
 # corpus written here plus whatever earlier runs kept in
-# build-fuzz/fuzz-corpus/NAME. Needs Debian's clang, libclang-rt-14-dev and
-# libomp-14-dev besides what tools/quickstart.sh installs.
+# build-fuzz/fuzz-corpus/NAME. Installs what is missing of Debian's clang,
+# libclang-rt-14-dev (libFuzzer) and libomp-14-dev (OpenMP for clang); the
+# rest is what tools/quickstart.sh installs.
 #   sh fuzz/run.sh [SECONDS]
 # Exits 1 if a target finds a bug, naming the input that reproduces it:
 #   ./build-fuzz/fuzz/fuzz_NAME FILE
@@ -12,6 +13,21 @@ cd "$(dirname "$0")/.."
 seconds=${1:-30}
 dir=build-fuzz
 targets="obj ply off build"
+
+missing=""
+for p in clang libclang-rt-14-dev libomp-14-dev; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+done
+if [ -n "$missing" ]; then
+  echo "canopy fuzz: installing:$missing" >&2
+  SUDO=""
+  if [ "$(id -u)" != 0 ]; then
+    command -v sudo >/dev/null 2>&1 || { echo "canopy fuzz: need root (or sudo) to install:$missing" >&2; exit 1; }
+    SUDO=sudo
+  fi
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
+fi
 
 if [ ! -f $dir/build.ninja ]; then
   CC=clang CXX=clang++ meson setup $dir -Dfuzz=true -Dbuildtype=debugoptimized \
@@ -32,12 +48,14 @@ mkdir -p $seeds/obj $seeds/ply $seeds/off $seeds/build
 bytes() {
   for b in "$@"; do printf "\\$(printf %03o "$b")"; done
 }
-# f32le X...: little-endian floats (small integers 0..4 and -1 only).
+# f32le X...: little-endian floats (0..4, -1, +-max: +-FLT_MAX, tiny: the
+# smallest denormal).
 f32le() {
   for x in "$@"; do
     case $x in
       0) bytes 0 0 0 0 ;; 1) bytes 0 0 128 63 ;; 2) bytes 0 0 0 64 ;;
       3) bytes 0 0 64 64 ;; 4) bytes 0 0 128 64 ;; -1) bytes 0 0 128 191 ;;
+      max) bytes 255 255 127 127 ;; -max) bytes 255 255 127 255 ;; tiny) bytes 1 0 0 0 ;;
     esac
   done
 }
@@ -77,6 +95,8 @@ printf 'nOFF 3\n3 1\n0 0 0\n1 0 0\n0 1 0\n3 2 1 0\n' >$seeds/off/ndim.off
 # count), then vertices and indices (see fuzz_build.cpp).
 { bytes 14 3 0 128 0 0 0 0 4 0; f32le 0 0 0 1 0 0 1 1 0 0 1 0; u32le 0 1 2 0 2 3; } >$seeds/build/quad
 { bytes 6 0 4 128 0 3 3 3 6 0; f32le 0 0 0 2 0 0 0 2 0 0 0 2 -1 -1 -1 4 4 4; u32le 0 1 2 0 1 3 3 4 5 1 2 3; } >$seeds/build/boxes
+{ bytes 2 1 0 128 0 0 0 0 8 0; f32le -max -max -max max 0 0 0 max 0 tiny tiny tiny 0 tiny 0 0 0 tiny -max 0 max max 0 -max
+  u32le 0 1 2 3 4 5 0 2 4 1 3 5 6 7 0; } >$seeds/build/extremes
 { bytes 30 7 5 126 0 15 15 15 64 0; bytes $(pseudo 192 7); bytes $(pseudo 1200 11); } >$seeds/build/int8
 { bytes 254 0 6 120 12 0 0 0 48 0; bytes $(pseudo 288 3); bytes $(pseudo 1800 5); } >$seeds/build/int16
 
@@ -91,7 +111,8 @@ for t in $targets; do
   dict=""
   if [ -f fuzz/$t.dict ]; then dict="-dict=fuzz/$t.dict"; fi
   rc=0
-  ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
+  # OpenMP workers sleep between builds rather than spin against the fuzzer.
+  OMP_WAIT_POLICY=passive ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
     ./$dir/fuzz/fuzz_$t -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
     -print_final_stats=1 -artifact_prefix="$artifacts/" $dict "$corpus" "$seeds/$t" >"$log" 2>&1 || rc=$?
   runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log")
