@@ -62,7 +62,12 @@ struct OmpLevels {
                     }
                 }
                 const size_t count = lv.small.size();
-#pragma omp for schedule(dynamic, 16)
+                // Chunks of one node while a level has few nodes (they are
+                // big: a chunk of 16 would hand a whole level of up to 16
+                // big nodes to one thread); chunks of 16 once the level is
+                // wide, where nodes are small and taking work costs.
+                const int chunk = count >= 64 * size_t(team) ? 16 : 1;
+#pragma omp for schedule(dynamic, chunk)
                 for (size_t i = 0; i < count; ++i) {
                     sched::Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
                     lv.split[i] = sched::run_recorded(ctx, lv.small[i], &lv.kids[2 * i], wk);
