@@ -24,6 +24,8 @@
 #include <bit>
 #include <cmath>
 #include <cstdio>
+#include <cctype>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <mutex>
@@ -205,7 +207,31 @@ struct CaseConfig {
     bool default_tuning = false;                  // the schedulers' default thresholds (big scenes)
 };
 
+// With CANOPY_STRESS_DIR set, every case is also written there as a binary
+// PLY (exact floats), so that `canopy build DIR/CASE.ply` reproduces it.
+void write_case(const std::string& name, const TriangleMesh& mesh) {
+    const char* dir = std::getenv("CANOPY_STRESS_DIR");
+    if (!dir || !*dir) return;
+    std::string file;
+    for (const char c : name) file += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
+    const std::string path = std::string(dir) + "/" + file + ".ply";
+    std::FILE* f = std::fopen(path.c_str(), "wb");
+    ASSERT_NE(f, nullptr) << path;
+    std::fprintf(f,
+                 "ply\nformat binary_little_endian 1.0\nelement vertex %zu\nproperty float x\nproperty float y\n"
+                 "property float z\nelement face %zu\nproperty list uchar uint vertex_indices\nend_header\n",
+                 mesh.vertices.size(), mesh.triangle_count());
+    for (const Vec3& v : mesh.vertices) std::fwrite(&v.x, sizeof(float), 3, f);  // x86-64: little-endian
+    for (size_t t = 0; t < mesh.triangle_count(); ++t) {
+        const unsigned char three = 3;
+        std::fwrite(&three, 1, 1, f);
+        std::fwrite(&mesh.indices[3 * t], sizeof(uint32_t), 3, f);
+    }
+    ASSERT_EQ(std::fclose(f), 0) << path;
+}
+
 void check_case(const std::string& name, const TriangleMesh& mesh, size_t ray_count, CaseConfig cc = {}) {
+    write_case(name, mesh);
     const bool expect_hits = cc.expect_hits;
     const std::span<const BinsLeaf> matrix = cc.matrix;
     auto options = [&](uint32_t bins, uint32_t leaf, uint32_t threads) {
