@@ -11,5 +11,7 @@ pc=$(find "$tmp" -name canopy.pc | head -n 1)
 export PKG_CONFIG_PATH="$(dirname "$pc")"
 export PKG_CONFIG_SYSROOT_DIR="$tmp"
 flags=$(pkg-config --cflags --libs canopy)
-c++ -std=c++20 -O1 "$src/consumer.cpp" -o "$tmp/consumer" $flags
+# CONSUMER_FLAGS: e.g. -fsanitize=address,undefined when the installed
+# library was built with them.
+c++ -std=c++20 -O1 ${CONSUMER_FLAGS:-} "$src/consumer.cpp" -o "$tmp/consumer" $flags
 "$tmp/consumer"
