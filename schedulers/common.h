@@ -35,7 +35,10 @@ inline bool team_parallel(uint32_t size, uint32_t n, uint32_t threads, const Sch
 inline bool below_cutoff(const NodeTask& t, const SchedulerTuning& tu) { return t.size() < tu.task_cutoff; }
 
 // Per-worker scratch: bins, the node records it created, its counters.
-struct Worker {
+// One per thread, each on cache lines of its own: the record vector and the
+// skip counters change at every node, and two workers sharing a line made
+// the threads invalidate each other's copy at every node (false sharing).
+struct alignas(64) Worker {
     std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
     std::vector<NodeRecord> records;
     SkipCounts skip;

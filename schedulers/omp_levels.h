@@ -9,6 +9,8 @@
 
 #include "omp_common.h"
 
+#include <algorithm>
+
 namespace canopy {
 
 struct OmpLevels {
@@ -21,6 +23,8 @@ struct OmpLevels {
         struct Level {
             std::vector<NodeTask> frontier, big, small, next, kids;
             std::vector<uint8_t> split;
+            std::vector<size_t> block_start;  // per thread: first child pair of its block
+            size_t base = 0;                  // where the small tasks' children start in next
             std::unique_ptr<ParallelNode> node;
             NodeTask big_kids[2];
         } lv;
@@ -35,10 +39,19 @@ struct OmpLevels {
                     lv.big.clear();
                     lv.small.clear();
                     lv.next.clear();
-                    for (const NodeTask& t : lv.frontier)
-                        (sched::team_parallel(t.size(), n, team, ctx.options->tuning) ? lv.big : lv.small).push_back(t);
+                    const bool any_big = std::any_of(lv.frontier.begin(), lv.frontier.end(), [&](const NodeTask& t) {
+                        return sched::team_parallel(t.size(), n, team, ctx.options->tuning);
+                    });
+                    if (any_big) {
+                        for (const NodeTask& t : lv.frontier)
+                            (sched::team_parallel(t.size(), n, team, ctx.options->tuning) ? lv.big : lv.small)
+                                .push_back(t);
+                    } else {
+                        lv.small.swap(lv.frontier);  // the deep levels: no copy
+                    }
                     lv.kids.resize(2 * lv.small.size());
                     lv.split.assign(lv.small.size(), 0);
+                    lv.block_start.assign(size_t(omp_get_num_threads()) + 1, 0);
                 }
                 if (lv.big.empty() && lv.small.empty()) break;
                 for (size_t i = 0; i < lv.big.size(); ++i) {
@@ -72,15 +85,32 @@ struct OmpLevels {
                     sched::Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
                     lv.split[i] = sched::run_recorded(ctx, lv.small[i], &lv.kids[2 * i], wk);
                 }
+                // The next level, in task order after the big nodes'
+                // children: a parallel pack. Each thread counts the splits
+                // of its own block of tasks, one thread turns the counts
+                // into offsets, and each copies its block's children there.
+                const size_t threads_now = size_t(omp_get_num_threads()), me = size_t(omp_get_thread_num());
+                const size_t per = (count + threads_now - 1) / threads_now;
+                const size_t b0 = std::min(count, per * me), b1 = std::min(count, b0 + per);
+                size_t mine = 0;
+                for (size_t i = b0; i < b1; ++i) mine += lv.split[i];
+                lv.block_start[me + 1] = mine;
+#pragma omp barrier
 #pragma omp single
                 {
-                    for (size_t i = 0; i < count; ++i)
-                        if (lv.split[i]) {
-                            lv.next.push_back(lv.kids[2 * i]);
-                            lv.next.push_back(lv.kids[2 * i + 1]);
-                        }
-                    lv.frontier.swap(lv.next);
+                    for (size_t b = 0; b < threads_now; ++b) lv.block_start[b + 1] += lv.block_start[b];
+                    lv.base = lv.next.size();
+                    lv.next.resize(lv.base + 2 * lv.block_start[threads_now]);
                 }
+                NodeTask* out = lv.next.data() + lv.base + 2 * lv.block_start[me];
+                for (size_t i = b0; i < b1; ++i)
+                    if (lv.split[i]) {
+                        *out++ = lv.kids[2 * i];
+                        *out++ = lv.kids[2 * i + 1];
+                    }
+#pragma omp barrier
+#pragma omp single
+                lv.frontier.swap(lv.next);
             }
         });
     }
