@@ -8,6 +8,7 @@
 #include "ply.h"
 
 #include "error.h"
+#include "file_read.h"
 
 #include <bit>
 #include <cerrno>
@@ -457,9 +458,16 @@ private:
             if (v < 0 || static_cast<uint64_t>(v) >= vertex_count_) bad_index(face, v, 0);
             return static_cast<uint32_t>(v);
         };
+        push_fan(n, index);
+    }
+
+    // The face's polygon as a fan (0, k-1, k) of n >= 3 corners; index(k)
+    // checks and returns corner k's vertex.
+    template <class Count, class Index>
+    void push_fan(Count n, const Index& index) {
         const uint32_t first = index(0);
         uint32_t prev = index(1);
-        for (int64_t k = 2; k < n; ++k) {
+        for (Count k = 2; k < n; ++k) {
             const uint32_t cur = index(k);
             mesh_.indices.push_back(first);
             mesh_.indices.push_back(prev);
@@ -567,15 +575,7 @@ private:
                     bad_index(i, type == Type::U32 ? static_cast<int64_t>(v) : load<Swap, int32_t>(items + 4 * k), 0);
                 return static_cast<uint32_t>(v);
             };
-            const uint32_t first = index(0);
-            uint32_t prev = index(1);
-            for (unsigned k = 2; k < n; ++k) {
-                const uint32_t cur = index(k);
-                mesh_.indices.push_back(first);
-                mesh_.indices.push_back(prev);
-                mesh_.indices.push_back(cur);
-                prev = cur;
-            }
+            push_fan(n, index);
         }
     }
 
@@ -764,37 +764,13 @@ private:
     TriangleMesh mesh_;
 };
 
-std::string read_file(const std::string& path) {
-    std::error_code ec;
-    if (std::filesystem::is_directory(path, ec)) throw InputError(path + ": cannot open: is a directory");
-    errno = 0;
-    std::ifstream in(path, std::ios::binary);
-    if (!in) {
-        const int e = errno;
-        throw InputError(path + ": cannot open" + (e != 0 ? ": " + std::generic_category().message(e) : std::string()));
-    }
-    std::string data;
-    in.seekg(0, std::ios::end);
-    const std::streamoff size = in.tellg();
-    in.seekg(0, std::ios::beg);
-    if (size > 0 && in) {
-        data.resize(static_cast<size_t>(size));
-        in.read(data.data(), size);
-        data.resize(static_cast<size_t>(in.gcount()));
-    } else {
-        in.clear();  // not seekable (a pipe): read it as a stream
-        data.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-    }
-    if (in.bad()) throw InputError(path + ": read error");
-    return data;
-}
 
 }  // namespace
 
 TriangleMesh parse_ply(std::string_view data, const std::string& name) { return Parser(data, name).parse(); }
 
 TriangleMesh load_ply(const std::string& path) {
-    const std::string data = read_file(path);
+    const std::string data = read_whole_file(path);
     return parse_ply(data, path);
 }
 

@@ -2,6 +2,7 @@
 #include "scene.h"
 
 #include "error.h"
+#include "file_read.h"
 #include "ply.h"
 
 #include <assimp/Importer.hpp>
@@ -329,32 +330,6 @@ Scene load_generator_spec(const std::string& spec) {
     throw InputError(path + ": line " + std::to_string(line) + ": " + what);
 }
 
-std::string read_whole_file(const std::string& path) {
-    std::error_code ec;
-    if (std::filesystem::is_directory(path, ec)) throw InputError(path + ": cannot open: is a directory");
-    errno = 0;
-    std::ifstream in(path, std::ios::binary);
-    if (!in) {
-        const int e = errno;
-        throw InputError(path + ": cannot open" +
-                         (e != 0 ? ": " + std::generic_category().message(e) : std::string()));
-    }
-    std::string text;
-    in.seekg(0, std::ios::end);
-    const std::streamoff size = in.tellg();
-    in.seekg(0, std::ios::beg);
-    if (size > 0 && in) {
-        text.resize(static_cast<size_t>(size));
-        in.read(text.data(), size);
-        text.resize(static_cast<size_t>(in.gcount()));
-    } else {
-        // Not seekable (a pipe, say): read it as a stream.
-        in.clear();
-        text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-    }
-    if (in.bad()) throw InputError(path + ": read error");
-    return text;
-}
 
 bool is_blank(char c) { return c == ' ' || c == '\t'; }
 
@@ -582,20 +557,9 @@ struct PositionHash {
     }
 };
 
-void check_readable(const std::string& path) {
-    std::error_code ec;
-    if (std::filesystem::is_directory(path, ec)) throw InputError(path + ": cannot open: is a directory");
-    errno = 0;
-    std::ifstream in(path, std::ios::binary);
-    if (!in) {
-        const int e = errno;
-        throw InputError(path + ": cannot open" +
-                         (e != 0 ? ": " + std::generic_category().message(e) : std::string()));
-    }
-}
 
 TriangleMesh load_with_assimp(const std::string& path) {
-    check_readable(path);
+    open_for_reading(path);  // a clear error for missing files before Assimp's own
     Assimp::Importer importer;
     importer.SetPropertyBool(AI_CONFIG_IMPORT_COLLADA_IGNORE_UP_DIRECTION, true);
     const aiScene* scene = importer.ReadFile(path, aiProcess_Triangulate | aiProcess_ValidateDataStructure);

@@ -1,5 +1,6 @@
 #include "traversal.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
@@ -198,16 +199,19 @@ float widen_down(float t, const BoxRay& r) {
 // that axis, are ignored (the ray runs inside that slab): every comparison
 // is written so that a NaN leaves tn / tf unchanged.
 bool box_hit(const Node& n, const BoxRay& r, float lo, float hi, float& tnear) {
-    float tn = lo, tf = hi;
+    float tn = lo, box_far = std::numeric_limits<float>::infinity();
     for (int a = 0; a < 3; ++a) {
         const float t0 = (n.min[a] - r.org[a]) * r.inv[a];
         const float t1 = (n.max[a] - r.org[a]) * r.inv[a];
         const float near = r.neg[a] ? t1 : t0;
         const float f = r.neg[a] ? t0 : t1;
-        const float far = f * (f < 0.0f ? kFarScaleNeg : kFarScale) + kAbsSlack;
+        const float far = f * (f < 0.0f ? kFarScaleNeg : kFarScale);
         if (near > tn) tn = near;
-        if (far < tf) tf = far;
+        if (far < box_far) box_far = far;
     }
+    // The absolute pad once, on the nearest far distance (adding it is
+    // monotone, so this equals padding every slab).
+    const float tf = std::min(hi, box_far + kAbsSlack);
     tnear = tn;
     return tn <= tf;
 }

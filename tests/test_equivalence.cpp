@@ -4,6 +4,8 @@
 #include "core/validate.h"
 #include "schedulers/registry.h"
 
+#include "test_util.h"
+
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -26,17 +28,7 @@ namespace {
 
 using namespace canopy;
 
-// Tuning turned down so that small scenes reach every code path: threads
-// start from 64 primitives, team-parallel nodes from 512, tasks from 64.
-BuildOptions small_tuning(uint32_t bins, uint32_t threads) {
-    BuildOptions o;
-    o.bins = bins;
-    o.threads = threads;
-    o.tuning.prims_per_thread = 64;
-    o.tuning.task_cutoff = 64;
-    o.tuning.parallel_node_min = 512;
-    return o;
-}
+using canopy::test_util::small_tuning;
 
 // True when `name` is one of the comma-separated names in `list`.
 bool listed(const char* list, const char* name) {

@@ -5,6 +5,8 @@
 #include "ply.h"
 #include "scene.h"
 
+#include "test_util.h"
+
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -27,20 +29,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// Runs `fn`, expects an InputError whose message contains every needle.
-void expect_input_error(const std::function<void()>& fn, const std::vector<std::string>& needles) {
-    try {
-        fn();
-        ADD_FAILURE() << "no exception thrown (expected InputError containing '"
-                      << (needles.empty() ? std::string() : needles[0]) << "')";
-    } catch (const InputError& e) {
-        const std::string what = e.what();
-        for (const std::string& needle : needles)
-            EXPECT_NE(what.find(needle), std::string::npos) << "message '" << what << "' lacks '" << needle << "'";
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "wrong exception type: " << e.what();
-    }
-}
+using canopy::test_util::expect_input_error;
 
 Box bounds(const TriangleMesh& mesh) {
     Box b;
@@ -48,32 +37,20 @@ Box bounds(const TriangleMesh& mesh) {
     return b;
 }
 
-class FormatFiles : public ::testing::Test {
+class FormatFiles : public canopy::test_util::TempDirTest {
 protected:
-    void SetUp() override {
-        static std::atomic<unsigned> counter{0};
-        std::random_device rd;
-        for (int attempt = 0; attempt < 100; ++attempt) {
-            const auto now = std::chrono::steady_clock::now().time_since_epoch().count();
-            dir_ = fs::temp_directory_path() / ("canopy-test-formats-" + std::to_string(rd()) + "-" +
-                                                std::to_string(now) + "-" + std::to_string(counter++));
-            if (fs::create_directory(dir_)) return;
-        }
-        FAIL() << "cannot create a temporary directory";
+    // Writes `text` to `name` and expects `load` (called with its path) to
+    // throw an InputError naming the file and containing every needle.
+    template <class Load>
+    void expect_rejected(const std::string& name, const std::string& text, std::vector<std::string> needles,
+                         Load&& load) {
+        SCOPED_TRACE(name);
+        const std::string path = write(name, text);
+        needles.push_back(path + ": ");
+        expect_input_error([&] { load(path); }, needles);
     }
-    void TearDown() override {
-        std::error_code ec;
-        if (!dir_.empty()) fs::remove_all(dir_, ec);
-    }
-    std::string write(const std::string& name, const std::string& content) {
-        const fs::path p = dir_ / name;
-        std::ofstream out(p, std::ios::binary);
-        out << content;
-        out.close();
-        EXPECT_TRUE(out) << "cannot write " << p;
-        return p.string();
-    }
-    fs::path dir_;
+    static void load_any(const std::string& path) { load_scene(path); }
+    static void load_ply_file(const std::string& path) { load_ply(path); }
 };
 
 // ---------------------------------------------------------------------------
@@ -348,13 +325,7 @@ TEST_F(FormatFiles, PlyHeaderErrors) {
         {"binaryheader.ply", std::string("ply\nformat ascii 1.0\n") + v3 + std::string("\x01\x02\x03\n", 4),
          {"header line 7", "binary data in the header"}},
     };
-    for (const Case& c : cases) {
-        SCOPED_TRACE(c.name);
-        const std::string path = write(c.name, c.text);
-        std::vector<std::string> needles = c.needles;
-        needles.push_back(path + ": ");
-        expect_input_error([&] { load_scene(path); }, needles);
-    }
+    for (const Case& c : cases) expect_rejected(c.name, c.text, c.needles, load_any);
 }
 
 TEST_F(FormatFiles, PlyBinaryTruncatedAndInconsistentSizes) {
@@ -436,13 +407,7 @@ TEST_F(FormatFiles, PlyBadIndicesCoordinatesAndFaces) {
         {"a_truncated.ply", verts + "3 0 1 2\n", {"file ends after line 13, before face 1"}},
         {"a_trailing.ply", verts + "3 0 1 2\n3 0 1 2\n\n3 0 1 2\n", {"line 16: data after the last element"}},
     };
-    for (const Case& c : cases) {
-        SCOPED_TRACE(c.name);
-        const std::string path = write(c.name, head + c.body);
-        std::vector<std::string> needles = c.needles;
-        needles.push_back(path + ": ");
-        expect_input_error([&] { load_ply(path); }, needles);
-    }
+    for (const Case& c : cases) expect_rejected(c.name, head + c.body, c.needles, load_ply_file);
 
     // Binary negative list count (a signed count type).
     const std::string signed_count =
@@ -635,13 +600,7 @@ TEST_F(FormatFiles, OffErrors) {
         {"truncated.off", "OFF\n3 2 0\n" + v3 + "3 0 1 2\n", {"file ends after line 6, before face 1"}},
         {"trailing.off", "OFF\n3 1 0\n" + v3 + "3 0 1 2\n3 0 1 2\n", {"line 7: data after the last face"}},
     };
-    for (const Case& c : cases) {
-        SCOPED_TRACE(c.name);
-        const std::string path = write(c.name, c.text);
-        std::vector<std::string> needles = c.needles;
-        needles.push_back(path + ": ");
-        expect_input_error([&] { load_scene(path); }, needles);
-    }
+    for (const Case& c : cases) expect_rejected(c.name, c.text, c.needles, load_any);
 }
 
 TEST_F(FormatFiles, ColladaNodeMatricesAreApplied) {
@@ -703,15 +662,11 @@ TEST_F(FormatFiles, AssimpErrorsNameTheFile) {
         {"empty.dae", "", {}},
     };
     for (const Case& c : cases) {
-        SCOPED_TRACE(c.name);
-        const std::string path = write(c.name, c.text);
-        std::vector<std::string> needles = c.needles;
-        needles.push_back(path + ": ");
         testing::internal::CaptureStdout();
         testing::internal::CaptureStderr();
-        expect_input_error([&] { load_scene(path); }, needles);
-        EXPECT_EQ(testing::internal::GetCapturedStdout(), "");
-        EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
+        expect_rejected(c.name, c.text, c.needles, load_any);
+        EXPECT_EQ(testing::internal::GetCapturedStdout(), "") << c.name;
+        EXPECT_EQ(testing::internal::GetCapturedStderr(), "") << c.name;
     }
 }
 

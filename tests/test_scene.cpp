@@ -5,6 +5,8 @@
 
 #include <glm/geometric.hpp>
 #include <glm/vec3.hpp>
+#include "test_util.h"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -29,20 +31,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// Runs `fn`, expects an InputError whose message contains every needle.
-void expect_input_error(const std::function<void()>& fn, const std::vector<std::string>& needles) {
-    try {
-        fn();
-        ADD_FAILURE() << "no exception thrown (expected InputError containing '"
-                      << (needles.empty() ? std::string() : needles[0]) << "')";
-    } catch (const InputError& e) {
-        const std::string what = e.what();
-        for (const std::string& needle : needles)
-            EXPECT_NE(what.find(needle), std::string::npos) << "message '" << what << "' lacks '" << needle << "'";
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "wrong exception type: " << e.what();
-    }
-}
+using canopy::test_util::expect_input_error;
 
 void expect_valid(const TriangleMesh& mesh) {
     ASSERT_EQ(mesh.indices.size() % 3, 0u);
@@ -297,34 +286,7 @@ TEST(CheckMesh, ReportsFirstProblem) {
 // ---------------------------------------------------------------------------
 // OBJ
 
-class ObjFiles : public ::testing::Test {
-protected:
-    void SetUp() override {
-        static std::atomic<unsigned> counter{0};
-        std::random_device rd;
-        for (int attempt = 0; attempt < 100; ++attempt) {
-            const auto now = std::chrono::steady_clock::now().time_since_epoch().count();
-            dir_ = fs::temp_directory_path() /
-                   ("canopy-test-scene-" + std::to_string(rd()) + "-" + std::to_string(now) + "-" +
-                    std::to_string(counter++));
-            if (fs::create_directory(dir_)) return;
-        }
-        FAIL() << "cannot create a temporary directory";
-    }
-    void TearDown() override {
-        std::error_code ec;
-        if (!dir_.empty()) fs::remove_all(dir_, ec);
-    }
-    std::string write(const std::string& name, const std::string& content) {
-        const fs::path p = dir_ / name;
-        std::ofstream out(p, std::ios::binary);
-        out << content;
-        out.close();
-        EXPECT_TRUE(out) << "cannot write " << p;
-        return p.string();
-    }
-    fs::path dir_;
-};
+class ObjFiles : public canopy::test_util::TempDirTest {};
 
 TEST_F(ObjFiles, QuadIsTriangulated) {
     const std::string path = write("quad.obj",

@@ -15,6 +15,8 @@
 #include "core/validate.h"
 #include "schedulers/registry.h"
 
+#include "test_util.h"
+
 #include <gtest/gtest.h>
 
 #include <glm/geometric.hpp>
@@ -83,13 +85,8 @@ Vec3 to_float(const glm::dvec3& v) { return Vec3(float(v.x), float(v.y), float(v
 // that threads start, big nodes run team-parallel and tasks are spawned on
 // scenes of a few thousand primitives.
 BuildOptions options(uint32_t bins, uint32_t leaf, uint32_t threads) {
-    BuildOptions o;
-    o.bins = bins;
+    BuildOptions o = canopy::test_util::small_tuning(bins, threads);
     o.max_leaf = leaf;
-    o.threads = threads;
-    o.tuning.prims_per_thread = 64;
-    o.tuning.task_cutoff = 64;
-    o.tuning.parallel_node_min = 512;
     return o;
 }
 
