@@ -56,6 +56,7 @@ struct SkipCounts {
     uint64_t single_leaves = 0;       // one-primitive nodes, no binning
     uint64_t inline_tasks = 0;        // node tasks run inline below the task cutoff
     uint64_t parallel_nodes = 0;      // nodes binned and partitioned by the whole team
+    uint64_t bound_leaves = 0;        // leaves found by the SAH lower bound, not binned
 
     void add(const SkipCounts& o) {
         axes_not_binned += o.axes_not_binned;
@@ -64,6 +65,7 @@ struct SkipCounts {
         single_leaves += o.single_leaves;
         inline_tasks += o.inline_tasks;
         parallel_nodes += o.parallel_nodes;
+        bound_leaves += o.bound_leaves;
     }
 };
 
@@ -575,6 +577,32 @@ inline bool sah_says_leaf(const Split& s, uint32_t n, const BuildOptions& opt) {
     return !s.found() || s.cost >= double(opt.intersection_cost) * double(n);
 }
 
+// A node that fits in a leaf becomes one when no split is cheaper. Every
+// split costs at least C_t + C_i * (sum of the primitives' own half areas) / A,
+// because each side's box contains the boxes of its primitives
+// (A_L n_L >= sum over the left primitives of their areas, and so on). When
+// that lower bound already reaches the leaf's cost C_i * n, binning and
+// evaluating would only confirm the leaf, so they are skipped: the tree is the
+// same. The bound is taken with a relative margin of 2^-12, far above the
+// rounding of the scaled float areas evaluate() compares (a few float ulps),
+// and only for nodes whose area is not tiny against their squared extent
+// (where those float areas are normal numbers); otherwise the node is
+// evaluated as usual.
+inline bool leaf_by_bound(const PrimRef* refs, const NodeTask& t, const BuildOptions& opt) {
+    const double area = t.bounds.half_area();
+    const double ext = std::max({t.bounds.extent(0), t.bounds.extent(1), t.bounds.extent(2)});
+    if (!(area > ext * ext * 0x1p-40)) return false;
+    double sum = 0.0;
+    for (uint32_t i = t.begin; i < t.end; ++i) {
+        const PrimRef& r = refs[i];
+        const double dx = double(r.hi.x) - double(r.lo.x), dy = double(r.hi.y) - double(r.lo.y),
+                     dz = double(r.hi.z) - double(r.lo.z);
+        sum += dx * dy + dy * dz + dz * dx;
+    }
+    const double bound = double(opt.traversal_cost) + double(opt.intersection_cost) * (sum / area) * (1.0 - 0x1p-12);
+    return bound >= double(opt.intersection_cost) * double(t.size());
+}
+
 // Everything a node task needs besides its own range.
 class TraceLog;
 
@@ -606,6 +634,11 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     if (p == Plan::Middle) {
         part = middle_split(ctx.src(t), t.begin, t.end);
     } else if (p == Plan::Sah) {
+        if (t.size() <= opt.max_leaf && leaf_by_bound(ctx.src(t), t, opt)) {
+            ++skip.bound_leaves;
+            write_leaf(ctx, t);
+            return false;
+        }
         const BinMapper m = BinMapper::make(t.cbounds, bins_for(t.size(), opt.bins));
         if (!m.any_valid()) {
             ++skip.coincident_nodes;

@@ -910,6 +910,78 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
     EXPECT_TRUE(same_records(buf.b, sentinels(200)));
 }
 
+// ---------------------------------------------------------------- leaf_by_bound
+
+// The full verdict on a node that fits in a leaf: bin, evaluate, decide.
+bool evaluated_leaf(const std::vector<PrimRef>& refs, const NodeTask& t, const BuildOptions& opt) {
+    const BinMapper m = BinMapper::make(t.cbounds, canopy::bins_for(t.size(), opt.bins));
+    if (!m.any_valid()) return true;  // coincident centroids: a leaf (n <= max_leaf)
+    const auto b = binned(refs, t.begin, t.end, m);
+    return canopy::sah_says_leaf(canopy::evaluate(*b, m, t.bounds, opt), t.size(), opt);
+}
+
+TEST(KernelLeafByBound, HandMadeCases) {
+    BuildOptions opt;  // C_t = C_i = 1, max_leaf 4
+    // Two triangles of one quad: each box is the quad's box, so every split
+    // costs at least 1 + 2 = 3 >= 2: a leaf without binning.
+    const std::vector<PrimRef> quad = {make_ref(Vec3(0, 0, 0), Vec3(1, 1, 0), 0),
+                                       make_ref(Vec3(0, 0, 0), Vec3(1, 1, 0), 1)};
+    EXPECT_TRUE(canopy::leaf_by_bound(quad.data(), task_of(quad, 0, 2), opt));
+    EXPECT_TRUE(evaluated_leaf(quad, task_of(quad, 0, 2), opt));
+
+    // Two small cubes far apart: the bound (1 + tiny) is far below 2, and the
+    // evaluation splits them.
+    const std::vector<PrimRef> apart = {cube(Vec3(0), 0.1f, 0), cube(Vec3(10), 0.1f, 1)};
+    EXPECT_FALSE(canopy::leaf_by_bound(apart.data(), task_of(apart, 0, 2), opt));
+    EXPECT_FALSE(evaluated_leaf(apart, task_of(apart, 0, 2), opt));
+
+    // A flat node (zero half area) is never decided by the bound.
+    const std::vector<PrimRef> line = {make_ref(Vec3(0, 0, 0), Vec3(1, 0, 0), 0),
+                                       make_ref(Vec3(0, 0, 0), Vec3(1, 0, 0), 1)};
+    EXPECT_FALSE(canopy::leaf_by_bound(line.data(), task_of(line, 0, 2), opt));
+
+    // run_node counts the skip and writes the leaf.
+    Buffers buf(quad);
+    auto bins = std::make_unique<BinSet>();
+    SkipCounts skip;
+    NodeTask children[2];
+    EXPECT_FALSE(canopy::run_node(buf.ctx(), task_of(quad, 0, 2), children, *bins, skip));
+    EXPECT_EQ(skip.bound_leaves, 1u);
+    EXPECT_EQ(buf.perm, (std::vector<uint32_t>{0, 1}));
+}
+
+// Property: whenever the bound says leaf, binning and evaluating say leaf
+// too (so skipping them cannot change the tree), for random small nodes,
+// costs and bin counts. Both verdicts must occur, or the test proves nothing.
+TEST(KernelLeafByBound, NeverContradictsTheEvaluation) {
+    std::mt19937 rng(2024);
+    uint32_t bound_leaves = 0, evaluated_only = 0;
+    for (int trial = 0; trial < 20000; ++trial) {
+        BuildOptions opt;
+        opt.max_leaf = 2 + rng() % 7;
+        opt.bins = 2u << (rng() % 7);
+        opt.traversal_cost = uniform(rng, 0.1f, 3.0f);
+        opt.intersection_cost = uniform(rng, 0.1f, 3.0f);
+        const uint32_t n = 2 + rng() % (opt.max_leaf - 1);
+        // Overlapping boxes of random sizes in a small region, sometimes flat
+        // on one axis, at scales from tiny to huge.
+        const float scale = std::ldexp(1.0f, int(rng() % 200) - 100);
+        std::vector<PrimRef> refs = random_refs(n, rng(), 4.0f * scale, uniform(rng, 0.5f, 8.0f) * scale);
+        if (rng() % 4 == 0)
+            for (PrimRef& r : refs) r.hi.z = r.lo.z = 0.0f;
+        const NodeTask t = task_of(refs, 0, n);
+        const bool evaluated = evaluated_leaf(refs, t, opt);
+        if (canopy::leaf_by_bound(refs.data(), t, opt)) {
+            ++bound_leaves;
+            EXPECT_TRUE(evaluated) << "trial " << trial;
+        } else if (evaluated) {
+            ++evaluated_only;
+        }
+    }
+    EXPECT_GT(bound_leaves, 1000u);
+    EXPECT_GT(evaluated_only, 100u);
+}
+
 TEST(KernelSimd, CountsConvertAsFloatOfUint32) {
     // evaluate() converts bin counts four lanes at a time; it must round as
     // float(uint32_t) does, above 2^24 and above 2^31 too.

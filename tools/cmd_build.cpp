@@ -107,6 +107,7 @@ int run_build(const BuildArgs& a) {
         sk["single_leaves"] = stats.skipped.single_leaves;
         sk["inline_tasks"] = stats.skipped.inline_tasks;
         sk["parallel_nodes"] = stats.skipped.parallel_nodes;
+        sk["bound_leaves"] = stats.skipped.bound_leaves;
         j["skipped"] = sk;
         std::cout << j.dump() << "\n";
     } else {
