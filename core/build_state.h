@@ -3,6 +3,7 @@
 
 #include "bvh.h"
 #include "kernel.h"
+#include "memory.h"
 #include "mesh.h"
 #include "options.h"
 #include "primitives.h"
@@ -21,7 +22,7 @@ struct BuildStats {
 };
 
 // An array that is not zero-filled on allocation (every slot is written by
-// the build before it is read).
+// the build before it is read), on huge pages where the system allows.
 template <class T>
 struct RawArray {
     std::unique_ptr<T[]> data;
@@ -29,6 +30,7 @@ struct RawArray {
     void allocate(size_t n) {
         data.reset(new T[n]);
         size = n;
+        advise_huge_pages(data.get(), n * sizeof(T));
     }
     T* get() const { return data.get(); }
 };

@@ -20,6 +20,7 @@
 
 #include "bvh.h"
 #include "kernel.h"
+#include "memory.h"
 
 #include <atomic>
 #include <bit>
@@ -107,6 +108,9 @@ void place_records(std::span<const std::vector<NodeRecord>> arenas, uint32_t pri
                    std::vector<Node>& nodes, ForEach&& for_each) {
     size_t total = 0;
     for (const auto& a : arenas) total += a.size();
+    nodes.clear();
+    nodes.reserve(total);
+    advise_huge_pages(nodes.data(), total * sizeof(Node));
     nodes.resize(total);
     LeafRank rank(primitive_count);
     for_each(arenas.size(), [&](size_t i) {

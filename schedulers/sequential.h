@@ -28,6 +28,7 @@ private:
         std::vector<Node>& nodes = st.bvh.nodes;
         nodes.clear();
         nodes.reserve(st.n);  // typical trees need fewer; it grows if not
+        advise_huge_pages(nodes.data(), nodes.capacity() * sizeof(Node));
         nodes.emplace_back();
         auto bins = std::make_unique<BinSet>();
         struct Item {
