@@ -7,15 +7,19 @@
 // times the two against each other.
 //
 // Builders (all bit-identical to Sequential, checked before any timing):
-//   tbb_arith             schedulers/tbb.h copied, with a timer around its
-//                         final pass (sched::finish_parallel: leaf bitmap,
-//                         ranks, every record to its slot)
+//   tbb_arith             the library's former placement: every node a
+//                         40-byte record placed by arithmetic (leaf bitmap,
+//                         ranks, every record to its slot), timed pass
 //   tbb_renumber          the same kernel, cutoffs and tuning, numbering by
 //                         renumbering (TbbRenumber below): nodes above the
 //                         task cutoff are linked entries, inline subtrees
 //                         are contiguous blocks already in canonical order
 //   tbb_renumber_pernode  the same with every node a linked entry (no
 //                         blocks): the plain form of renumbering
+//   tbb (library)         schedulers/tbb.h since it adopted blocks: task
+//                         nodes placed by arithmetic, inline subtrees as
+//                         blocks moved by one offset (core/layout.h); its
+//                         pass is not timed apart
 // At one thread all of them fall back to Sequential, as Tbb does, unless
 // --force-parallel runs their parallel path on a one-thread arena.
 //
@@ -98,11 +102,20 @@ struct TbbForEach {
 };
 
 // ---------------------------------------------------------------------------
-// Arithmetic placement: schedulers/tbb.h line for line, with the final pass
-// timed and the records measured.
+// Arithmetic placement of every node: how the library's parallel drivers
+// placed nodes before they adopted blocks (schedulers/tbb.h as it was, kept
+// here for the comparison): every node, inline subtrees included, appends a
+// 40-byte NodeRecord; the final pass marks leaf starts in a bitmap, turns it
+// into prefix counts, and writes each record to its arithmetic slot.
 
 struct TbbArith {
     static constexpr const char* name = "tbb_arith";
+
+    struct alignas(64) Worker {
+        std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
+        std::vector<NodeRecord> records;
+        SkipCounts skip;
+    };
 
     static void run(BuildState& st) {
         g_probe = {};
@@ -112,26 +125,41 @@ struct TbbArith {
         tbb::task_arena arena(static_cast<int>(threads));
         arena.execute([&] {
             sched::prepare_parallel(st, TbbForEach{});
-            sched::Workers workers(static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
+            std::vector<Worker> workers(static_cast<size_t>(tbb::this_task_arena::max_concurrency()));
             Builder b{st.context(), st.n, threads, workers};
             b.task(st.root);
-            // The records, and the leaf bitmap with its prefix counts that
-            // place_records() allocates.
+            // The records, and the leaf bitmap with its prefix counts.
             const size_t words = (size_t(st.n) + 63) / 64 + 1;
             g_probe.stored_bytes = g_probe.reserved_bytes = words * sizeof(uint64_t) + (words + 1) * sizeof(uint32_t);
-            for (const auto& wk : workers.w) {
+            size_t total = 0;
+            for (const auto& wk : workers) {
                 g_probe.stored_bytes += wk.records.size() * sizeof(NodeRecord);
                 g_probe.reserved_bytes += wk.records.capacity() * sizeof(NodeRecord);
+                total += wk.records.size();
+                st.stats.skipped.add(wk.skip);
             }
-            // The node array place_records() would allocate first, timed on
-            // its own (place_records then finds it sized).
-            size_t total = 0;
-            for (const auto& wk : workers.w) total += wk.records.size();
+            // The output node array, timed on its own.
             const auto t0 = Clock::now();
+            st.bvh.nodes.reserve(total);  // on huge pages, as the library's place_nodes()
+            advise_huge_pages(st.bvh.nodes.data(), total * sizeof(Node));
             st.bvh.nodes.resize(total);
             g_probe.alloc_ms = ms_since(t0);
             const auto t1 = Clock::now();
-            sched::finish_parallel(st, workers, TbbForEach{});
+            LeafRank rank(st.n);
+            TbbForEach{}(static_cast<uint32_t>(workers.size()), [&](uint32_t i) {
+                for (const NodeRecord& r : workers[i].records)
+                    if (r.count) rank.mark(r.begin);
+            });
+            rank.finish();
+            Node* nodes = st.bvh.nodes.data();
+            TbbForEach{}(static_cast<uint32_t>(workers.size()), [&](uint32_t i) {
+                for (const NodeRecord& r : workers[i].records) {
+                    Node& n = nodes[canonical_slot(r, rank)];
+                    n.set_box(r.box);
+                    n.index = r.count ? r.begin : first_child_slot(r.depth, rank.rank(r.begin), r.rights);
+                    n.count = r.count;
+                }
+            });
             g_probe.place_ms = ms_since(t1);
         });
     }
@@ -140,26 +168,41 @@ private:
     struct Builder {
         KernelContext ctx;
         uint32_t n, threads;
-        sched::Workers& workers;
+        std::vector<Worker>& workers;
 
-        sched::Worker& me() { return workers[static_cast<size_t>(tbb::this_task_arena::current_thread_index())]; }
+        Worker& me() { return workers[static_cast<size_t>(tbb::this_task_arena::current_thread_index())]; }
+
+        bool run_recorded(const NodeTask& t, NodeTask children[2]) {
+            Worker& wk = me();
+            const bool split = run_node(ctx, t, children, *wk.bins, wk.skip);
+            wk.records.push_back(NodeRecord::of(t, !split));
+            return split;
+        }
 
         void task(const NodeTask& t) {
             if (sched::below_cutoff(t, ctx.options->tuning)) {
                 ++me().skip.inline_tasks;
-                sched::run_subtree(ctx, t, me());
+                NodeTask stack[2 * (kMaxDepthCap + 2)];
+                uint32_t top = 0;
+                stack[top++] = t;
+                NodeTask children[2];
+                while (top) {
+                    const NodeTask u = stack[--top];
+                    if (run_recorded(u, children)) {
+                        stack[top++] = children[1];
+                        stack[top++] = children[0];
+                    }
+                }
                 return;
             }
             NodeTask children[2];
             bool split;
             if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
-                const TraceScope trace(ctx.trace, t, me().id, TraceSpan::Parallel);
                 ParallelNode pn(ctx, t);
-                split = run_parallel_node(pn, children, me().skip, TbbForEach{}, [](auto&& fn) { fn(); }, ctx.trace,
-                                          me().id);
+                split = run_parallel_node(pn, children, me().skip, TbbForEach{}, [](auto&& fn) { fn(); }, nullptr, 0);
                 me().records.push_back(NodeRecord::of(t, !split));
             } else {
-                split = sched::run_recorded(ctx, t, children, me());
+                split = run_recorded(t, children);
             }
             if (!split) return;
             tbb::parallel_invoke([&] { task(children[0]); }, [&] { task(children[1]); });
@@ -217,6 +260,8 @@ struct TbbRenumberT {
             size_t total = 0;
             for (const Worker& wk : workers) total += wk.entries.size() + wk.nodes.size();
             const auto t0 = Clock::now();
+            st.bvh.nodes.reserve(total);  // on huge pages, as the library's place_nodes()
+            advise_huge_pages(st.bvh.nodes.data(), total * sizeof(Node));
             st.bvh.nodes.resize(total);
             g_probe.alloc_ms = ms_since(t0);
             const auto t1 = Clock::now();
@@ -439,11 +484,12 @@ using TbbRenumberPerNode = TbbRenumberT<false>;
 struct Builder {
     const char* name;
     Bvh (*build)(const TriangleView&, const BuildOptions&);
+    bool instrumented = true;  // fills g_probe (the library's own driver does not)
 };
 
 template <Scheduler S>
-Builder builder() {
-    return {S::name, [](const TriangleView& v, const BuildOptions& o) { return canopy::build<S>(v, o); }};
+Builder builder(const char* name = S::name, bool instrumented = true) {
+    return {name, [](const TriangleView& v, const BuildOptions& o) { return canopy::build<S>(v, o); }, instrumented};
 }
 
 double median(std::vector<double> v) {
@@ -530,9 +576,11 @@ int run(int argc, char** argv) {
             std::cout << "skipping dragon_vrip_res2.obj: not found in '" << dir.string() << "'\n";
     }
 
-    const std::vector<Builder> timed = {builder<TbbArith>(), builder<TbbRenumber>(), builder<TbbRenumberPerNode>()};
-    std::vector<Builder> checked = timed;
-    checked.push_back(builder<Tbb>());  // the library's driver, which tbb_arith copies
+    // The library's Tbb: arithmetic slots for task nodes, inline subtrees as
+    // blocks moved by one offset (core/layout.h); not instrumented.
+    const std::vector<Builder> timed = {builder<TbbArith>(), builder<TbbRenumber>(), builder<TbbRenumberPerNode>(),
+                                        builder<Tbb>("tbb (library)", false)};
+    const std::vector<Builder>& checked = timed;
 
     std::cout << "checking against sequential (small scenes, tuning turned down)...\n";
     if (!check_small_scenes(checked)) return 1;
@@ -609,11 +657,17 @@ int run(int argc, char** argv) {
         for (size_t b = 0; b < timed.size(); ++b) {
             std::cout << "  " << std::left << std::setw(22) << timed[b].name << std::right << std::setprecision(2)
                       << std::setw(10) << row.build_ms[b] << std::setprecision(3) << std::setw(8)
-                      << row.build_ms[b] / row.build_ms[0] << std::setprecision(2) << std::setw(10)
-                      << row.alloc_ms[b] << std::setw(10) << row.place_ms[b] << std::setprecision(3) << std::setw(8)
-                      << (row.place_ms[0] > 0 ? row.place_ms[b] / row.place_ms[0] : 0.0) << std::setprecision(1)
-                      << std::setw(8) << row.stored[b] / tris << std::setw(10) << row.reserved[b] / tris
-                      << std::setw(8) << row.peak[b] / tris << "\n";
+                      << row.build_ms[b] / row.build_ms[0];
+            if (timed[b].instrumented)
+                std::cout << std::setprecision(2) << std::setw(10) << row.alloc_ms[b] << std::setw(10)
+                          << row.place_ms[b] << std::setprecision(3) << std::setw(8)
+                          << (row.place_ms[0] > 0 ? row.place_ms[b] / row.place_ms[0] : 0.0)
+                          << std::setprecision(1) << std::setw(8) << row.stored[b] / tris << std::setw(10)
+                          << row.reserved[b] / tris;
+            else
+                std::cout << std::setw(10) << "-" << std::setw(10) << "-" << std::setw(8) << "-" << std::setw(8)
+                          << "-" << std::setw(10) << "-";
+            std::cout << std::setprecision(1) << std::setw(8) << row.peak[b] / tris << "\n";
         }
     }
     return 0;

@@ -1,10 +1,12 @@
 // canopy: what the parallel schedulers share. Each driver supplies only its
 // own way of running things in parallel; the node work is the kernel's
 // (core/kernel.h, core/parallel_node.h) and the node placement is
-// arithmetic (core/layout.h), so no timing can reach the output.
+// arithmetic for task nodes and one offset per inline subtree
+// (core/layout.h), so no timing can reach the output.
 #pragma once
 
 #include "../core/build.h"
+#include "../core/depth_first.h"
 #include "../core/layout.h"
 #include "../core/parallel_node.h"
 #include "../core/trace.h"
@@ -34,13 +36,14 @@ inline bool team_parallel(uint32_t size, uint32_t n, uint32_t threads, const Sch
 
 inline bool below_cutoff(const NodeTask& t, const SchedulerTuning& tu) { return t.size() < tu.task_cutoff; }
 
-// Per-worker scratch: bins, the node records it created, its counters.
+// Per-worker scratch: bins, the nodes it created (task records and inline
+// subtree blocks), its counters.
 // One per thread, each on cache lines of its own: the record vector and the
 // skip counters change at every node, and two workers sharing a line made
 // the threads invalidate each other's copy at every node (false sharing).
 struct alignas(64) Worker {
     std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
-    std::vector<NodeRecord> records;
+    PlacementArena out;
     SkipCounts skip;
     uint32_t id = 0;  // the trace's track
 };
@@ -60,24 +63,20 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
     const TraceScope trace(below_cutoff(t, ctx.options->tuning) ? nullptr : ctx.trace, t, wk.id,
                            TraceSpan::Task);
     const bool split = run_node(ctx, t, children, *wk.bins, wk.skip);
-    wk.records.push_back(NodeRecord::of(t, !split));
+    wk.out.records.push_back(NodeRecord::of(t, !split));
     return split;
 }
 
-// Runs a whole subtree depth-first on worker `wk` (no further parallelism).
+// Runs a whole subtree depth-first on worker `wk` (no further parallelism),
+// as one block in the sequential layout.
 inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
     const TraceScope trace(ctx.trace, root, wk.id, TraceSpan::Inline);
-    NodeTask stack[2 * (kMaxDepthCap + 2)];
-    uint32_t top = 0;
-    stack[top++] = root;
-    NodeTask children[2];
-    while (top) {
-        const NodeTask t = stack[--top];
-        if (run_recorded(ctx, t, children, wk)) {
-            stack[top++] = children[1];
-            stack[top++] = children[0];
-        }
-    }
+    SubtreeBlock b;
+    b.first = static_cast<uint32_t>(wk.out.block_nodes.size());
+    b.leaves = build_depth_first(ctx, root, wk.out.block_nodes, *wk.bins, wk.skip, wk.id);
+    b.size = static_cast<uint32_t>(wk.out.block_nodes.size()) - b.first;
+    b.root = NodeRecord::of(root, wk.out.block_nodes[b.first].is_leaf());
+    wk.out.blocks.push_back(b);
 }
 
 // Prepares the primitives with for_each over blocks (any order, any
@@ -99,14 +98,14 @@ void prepare_parallel(BuildState& st, ForEach&& for_each) {
 // permutation as they were made).
 template <class ForEach>
 void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
-    std::vector<std::vector<NodeRecord>> arenas;
+    std::vector<const PlacementArena*> arenas;
     arenas.reserve(workers.size());
     for (auto& wk : workers.w) {
-        arenas.push_back(std::move(wk.records));
+        arenas.push_back(&wk.out);
         st.stats.skipped.add(wk.skip);
     }
-    place_records(std::span<const std::vector<NodeRecord>>(arenas), st.n, st.bvh.nodes,
-                  [&](size_t k, auto&& fn) { for_each(static_cast<uint32_t>(k), fn); });
+    place_nodes(std::span<const PlacementArena* const>(arenas), st.bvh.nodes,
+                [&](size_t k, auto&& fn) { for_each(static_cast<uint32_t>(k), fn); });
 }
 
 }  // namespace canopy::sched

@@ -75,7 +75,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
 #pragma omp single
             {
                 const bool split = top.node->splits();
-                workers[static_cast<size_t>(omp_get_thread_num())].records.push_back(
+                workers[static_cast<size_t>(omp_get_thread_num())].out.records.push_back(
                     NodeRecord::of(top.big[i], !split));
                 if (split) {
                     top.next.push_back(top.kids[0]);

@@ -70,7 +70,7 @@ struct OmpLevels {
 #pragma omp single
                     {
                         const bool split = lv.node->splits();
-                        workers[static_cast<size_t>(omp_get_thread_num())].records.push_back(
+                        workers[static_cast<size_t>(omp_get_thread_num())].out.records.push_back(
                             NodeRecord::of(lv.big[i], !split));
                         if (split) {
                             lv.next.push_back(lv.big_kids[0]);

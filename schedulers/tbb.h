@@ -70,7 +70,7 @@ private:
                                           });
                     },
                     [](auto&& fn) { fn(); }, ctx.trace, me().id);
-                me().records.push_back(NodeRecord::of(t, !split));
+                me().out.records.push_back(NodeRecord::of(t, !split));
             } else {
                 split = sched::run_recorded(ctx, t, children, me());
             }

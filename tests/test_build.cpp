@@ -597,9 +597,9 @@ struct ReverseForEach {
     }
 };
 
-std::vector<Node> place(const std::vector<std::vector<NodeRecord>>& arenas, uint32_t n) {
+std::vector<Node> place(const std::vector<std::vector<NodeRecord>>& arenas) {
     std::vector<Node> nodes;
-    canopy::place_records(std::span<const std::vector<NodeRecord>>(arenas), n, nodes, ReverseForEach{});
+    canopy::place_records(std::span<const std::vector<NodeRecord>>(arenas), nodes, ReverseForEach{});
     return nodes;
 }
 
@@ -632,7 +632,7 @@ TEST(BuildLayout, PlaceRecordsReproducesTheSequentialTree) {
         ASSERT_EQ(recs.size(), b.nodes.size());
         for (uint32_t seed = 0; seed < 3; ++seed) {
             const auto arenas = scatter(recs, 3, seed);
-            const std::vector<Node> nodes = place(arenas, uint32_t(b.permutation.size()));
+            const std::vector<Node> nodes = place(arenas);
             EXPECT_TRUE(same_nodes(nodes, b.nodes))
                 << "n=" << c.mesh.triangle_count() << " seed " << seed;
         }
@@ -675,9 +675,91 @@ TEST(BuildLayout, KernelTasksInRandomOrderPlaceLikeSequential) {
             arenas[rng() % 3].push_back(NodeRecord::of(t, !split));
             if (split) pending.insert(pending.end(), {children[0], children[1]});
         }
-        const std::vector<Node> nodes = place(arenas, n);
+        const std::vector<Node> nodes = place(arenas);
         EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << n;
         EXPECT_EQ(perm, expected.permutation) << "n=" << n;
+    }
+}
+
+TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
+    // What the parallel drivers leave: some subtrees as blocks in the
+    // sequential layout (relative indices), the other nodes as records, all
+    // scattered over arenas in random order. Blocks are cut from the
+    // sequential tree itself: in the canonical layout a node's descendants
+    // fill [first child, first child + descendants).
+    const TriangleMesh meshes[] = {random_mesh(3000, 21), grid_mesh(18), coincident_mesh(500), random_mesh(1, 2)};
+    for (const TriangleMesh& m : meshes) {
+        const Bvh b = build(m, BuildOptions{});
+        const std::vector<NodeRecord> recs = records_of(b);  // in depth-first pre-order of nodes
+        // Node index of each record, in the same walk order.
+        std::vector<uint32_t> index_of;
+        {
+            std::vector<uint32_t> stack{0};
+            while (!stack.empty()) {
+                const uint32_t i = stack.back();
+                stack.pop_back();
+                index_of.push_back(i);
+                if (!b.nodes[i].is_leaf()) stack.insert(stack.end(), {b.nodes[i].index + 1, b.nodes[i].index});
+            }
+        }
+        ASSERT_EQ(index_of.size(), recs.size());
+        std::vector<uint32_t> subtree_size(b.nodes.size(), 1), leaves(b.nodes.size(), 0);
+        for (size_t k = index_of.size(); k-- > 0;) {  // children before parents
+            const Node& n = b.nodes[index_of[k]];
+            if (n.is_leaf()) {
+                leaves[index_of[k]] = 1;
+            } else {
+                subtree_size[index_of[k]] = 1 + subtree_size[n.index] + subtree_size[n.index + 1];
+                leaves[index_of[k]] = leaves[n.index] + leaves[n.index + 1];
+            }
+        }
+        uint32_t total_blocks = 0;
+        for (uint32_t seed = 0; seed < 4; ++seed) {
+            std::mt19937 rng(seed);
+            std::vector<canopy::PlacementArena> arenas(3);
+            std::vector<char> covered(b.nodes.size(), 0);
+            uint32_t blocks = 0;
+            for (size_t k = 0; k < recs.size(); ++k) {
+                const uint32_t i = index_of[k];
+                if (covered[i]) continue;
+                canopy::PlacementArena& a = arenas[rng() % 3];
+                if (rng() % 3 == 0) {  // this node's subtree becomes a block
+                    canopy::SubtreeBlock blk;
+                    blk.root = recs[k];
+                    blk.first = uint32_t(a.block_nodes.size());
+                    blk.size = subtree_size[i];
+                    blk.leaves = leaves[i];
+                    const Node& root = b.nodes[i];
+                    const uint32_t c = root.is_leaf() ? 0 : root.index;
+                    auto relative = [&](Node n) {
+                        if (!n.is_leaf()) n.index = n.index - c + 1;
+                        return n;
+                    };
+                    a.block_nodes.push_back(relative(root));
+                    for (uint32_t j = 1; j < blk.size; ++j) a.block_nodes.push_back(relative(b.nodes[c + j - 1]));
+                    a.blocks.push_back(blk);
+                    ++blocks;
+                    // Mark the subtree covered.
+                    std::vector<uint32_t> st{i};
+                    while (!st.empty()) {
+                        const uint32_t u = st.back();
+                        st.pop_back();
+                        covered[u] = 1;
+                        if (!b.nodes[u].is_leaf()) st.insert(st.end(), {b.nodes[u].index, b.nodes[u].index + 1});
+                    }
+                } else {
+                    a.records.push_back(recs[k]);
+                    covered[i] = 1;
+                }
+            }
+            for (auto& a : arenas) std::shuffle(a.records.begin(), a.records.end(), rng);
+            std::vector<const canopy::PlacementArena*> views{&arenas[0], &arenas[1], &arenas[2]};
+            std::vector<Node> nodes;
+            canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nodes, ReverseForEach{});
+            EXPECT_TRUE(same_nodes(nodes, b.nodes)) << "n=" << m.triangle_count() << " seed " << seed;
+            total_blocks += blocks;
+        }
+        EXPECT_GT(total_blocks, 0u) << "n=" << m.triangle_count();  // the blocks were tested
     }
 }
 
