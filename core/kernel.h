@@ -337,6 +337,13 @@ inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bo
         return _mm_set_epi32(0, int32_t(bins.count[2][b]), int32_t(bins.count[1][b]), int32_t(bins.count[0][b]));
     };
     const __m128i zero = _mm_setzero_si128();
+    // Counts below 2^31 (every node of fewer than 2^31 primitives) convert
+    // exactly with the signed conversion; the general one is for bigger nodes.
+    uint64_t total = 0;
+    const int first_valid = m.valid[0] ? 0 : m.valid[1] ? 1 : 2;
+    for (uint32_t b = 0; b < nb; ++b) total += bins.count[first_valid][b];
+    const bool huge = total >= (uint64_t(1) << 31);
+    const auto to_float = [huge](__m128i c) { return huge ? simd::to_float(c) : _mm_cvtepi32_ps(c); };
     __m128 right_cost[kMaxBins];  // A_R n_R of the split before bin b; -1: empty
     simd::Box4 acc[3];
     __m128i n = zero;
@@ -344,7 +351,7 @@ inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bo
         for (int a = 0; a < 3; ++a) acc[a].grow(bins.box4[a][b]);
         n = _mm_add_epi32(n, counts(b));
         const __m128 empty = _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero));
-        const __m128 cost = _mm_mul_ps(measure.three(acc), simd::to_float(n));
+        const __m128 cost = _mm_mul_ps(measure.three(acc), to_float(n));
         right_cost[b] = _mm_or_ps(_mm_and_ps(empty, _mm_set1_ps(-1.0f)), _mm_andnot_ps(empty, cost));
     }
     const __m128 valid = _mm_castsi128_ps(
@@ -357,7 +364,7 @@ inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bo
     for (uint32_t s = 1; s < nb; ++s) {
         for (int a = 0; a < 3; ++a) acc[a].grow(bins.box4[a][s - 1]);
         n = _mm_add_epi32(n, counts(s - 1));
-        const __m128 sum = _mm_add_ps(_mm_mul_ps(measure.three(acc), simd::to_float(n)), right_cost[s]);
+        const __m128 sum = _mm_add_ps(_mm_mul_ps(measure.three(acc), to_float(n)), right_cost[s]);
         // A candidate: a valid axis, both sides non-empty, and strictly
         // better than the axis's best so far (the lowest index wins ties).
         const __m128 left_empty = _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero));
