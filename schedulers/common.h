@@ -50,8 +50,17 @@ struct alignas(64) Worker {
 
 struct Workers {
     std::vector<Worker> w;
-    explicit Workers(uint32_t count) : w(count) {
-        for (uint32_t i = 0; i < count; ++i) w[i].id = i;
+    // `primitives`: the build's size. Each worker's block array starts with
+    // room for its share of a typical tree (about one node per primitive),
+    // on huge pages where the system allows, so that it rarely grows: every
+    // growth copied the array into fresh memory.
+    Workers(uint32_t count, uint32_t primitives) : w(count) {
+        const size_t share = size_t(primitives) / std::max(1u, count) + 1024;
+        for (uint32_t i = 0; i < count; ++i) {
+            w[i].id = i;
+            w[i].out.block_nodes.reserve(share);
+            advise_huge_pages(w[i].out.block_nodes.data(), share * sizeof(Node));
+        }
     }
     Worker& operator[](size_t i) { return w[i]; }
     size_t size() const { return w.size(); }
