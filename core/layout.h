@@ -107,18 +107,37 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
 // A subtree one worker built inline (see the top of this file).
 struct SubtreeBlock {
     NodeRecord root;      // where the subtree's root sits in the tree
-    uint32_t first = 0;   // its nodes: the arena's block_nodes[first, first + size)
+    uint32_t chunk = 0;   // its nodes: the arena's chunks[chunk][first, first + size)
+    uint32_t first = 0;
     uint32_t size = 0;
     uint32_t leaves = 0;
 };
 
 // What one worker leaves for the placement.
 struct PlacementArena {
-    std::vector<NodeRecord> records;  // nodes run one at a time
-    std::vector<Node> block_nodes;    // the blocks' nodes, block after block
+    std::vector<NodeRecord> records;        // nodes run one at a time
+    std::vector<std::vector<Node>> chunks;  // the blocks' nodes, block after block
     std::vector<SubtreeBlock> blocks;
+    size_t chunk_nodes = size_t(1) << 17;   // usual chunk size (4 MiB)
 
-    size_t node_count() const { return records.size() + block_nodes.size(); }
+    // Node storage for a subtree of `primitives` primitives (at most
+    // 2 * primitives - 1 nodes): the last chunk when it has room, else a new
+    // one. Chunks never grow past their reserved size, so nodes are never
+    // copied and a chunk wastes at most one block's worth.
+    std::vector<Node>& chunk_for(uint32_t primitives) {
+        const size_t need = 2 * size_t(primitives);
+        if (chunks.empty() || chunks.back().capacity() - chunks.back().size() < need) {
+            const size_t cap = std::max(chunk_nodes, need);
+            chunks.emplace_back().reserve(cap);
+            advise_huge_pages(chunks.back().data(), cap * sizeof(Node));
+        }
+        return chunks.back();
+    }
+    size_t node_count() const {
+        size_t n = records.size();
+        for (const auto& c : chunks) n += c.size();
+        return n;
+    }
 };
 
 // L(v) from the pieces that tile the permutation (leaf records and blocks):
@@ -166,7 +185,7 @@ void place_arena(const PlacementArena& arena, const Rank& rank, Node* nodes) {
         }
     }
     for (const SubtreeBlock& b : arena.blocks) {
-        const Node* src = arena.block_nodes.data() + b.first;
+        const Node* src = arena.chunks[b.chunk].data() + b.first;
         // Block node i >= 1 goes to c + i - 1, c the root's first child slot;
         // an inner node's relative child index j becomes c + j - 1.
         const uint32_t c = src[0].is_leaf() ? 0 : first_child_slot(b.root.depth, rank.rank(b.root.begin), b.root.rights);

@@ -50,16 +50,17 @@ struct alignas(64) Worker {
 
 struct Workers {
     std::vector<Worker> w;
-    // `primitives`: the build's size. Each worker's block array starts with
-    // room for its share of a typical tree (about one node per primitive),
-    // on huge pages where the system allows, so that it rarely grows: every
-    // growth copied the array into fresh memory.
+    // `primitives`: the build's size, which sets the workers' chunk size for
+    // subtree blocks: about a quarter of a worker's share of the nodes (one
+    // node per primitive is typical), between 1 and 16 MiB, so that chunks
+    // waste little on small scenes and are big enough for huge pages on big
+    // ones.
     Workers(uint32_t count, uint32_t primitives) : w(count) {
-        const size_t share = size_t(primitives) / std::max(1u, count) + 1024;
+        const size_t share = size_t(primitives) / (4 * size_t(std::max(1u, count)));
+        const size_t chunk = std::clamp<size_t>(share, size_t(1) << 15, size_t(1) << 19);
         for (uint32_t i = 0; i < count; ++i) {
             w[i].id = i;
-            w[i].out.block_nodes.reserve(share);
-            advise_huge_pages(w[i].out.block_nodes.data(), share * sizeof(Node));
+            w[i].out.chunk_nodes = chunk;
         }
     }
     Worker& operator[](size_t i) { return w[i]; }
@@ -80,11 +81,13 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 // as one block in the sequential layout.
 inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
     const TraceScope trace(ctx.trace, root, wk.id, TraceSpan::Inline);
+    std::vector<Node>& nodes = wk.out.chunk_for(root.size());
     SubtreeBlock b;
-    b.first = static_cast<uint32_t>(wk.out.block_nodes.size());
-    b.leaves = build_depth_first(ctx, root, wk.out.block_nodes, *wk.bins, wk.skip, wk.id);
-    b.size = static_cast<uint32_t>(wk.out.block_nodes.size()) - b.first;
-    b.root = NodeRecord::of(root, wk.out.block_nodes[b.first].is_leaf());
+    b.chunk = static_cast<uint32_t>(wk.out.chunks.size() - 1);
+    b.first = static_cast<uint32_t>(nodes.size());
+    b.leaves = build_depth_first(ctx, root, nodes, *wk.bins, wk.skip, wk.id);
+    b.size = static_cast<uint32_t>(nodes.size()) - b.first;
+    b.root = NodeRecord::of(root, nodes[b.first].is_leaf());
     wk.out.blocks.push_back(b);
 }
 

@@ -726,7 +726,9 @@ TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
                 if (rng() % 3 == 0) {  // this node's subtree becomes a block
                     canopy::SubtreeBlock blk;
                     blk.root = recs[k];
-                    blk.first = uint32_t(a.block_nodes.size());
+                    std::vector<Node>& chunk = a.chunk_for(uint32_t(b.permutation.size()));
+                    blk.chunk = uint32_t(a.chunks.size() - 1);
+                    blk.first = uint32_t(chunk.size());
                     blk.size = subtree_size[i];
                     blk.leaves = leaves[i];
                     const Node& root = b.nodes[i];
@@ -735,8 +737,8 @@ TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
                         if (!n.is_leaf()) n.index = n.index - c + 1;
                         return n;
                     };
-                    a.block_nodes.push_back(relative(root));
-                    for (uint32_t j = 1; j < blk.size; ++j) a.block_nodes.push_back(relative(b.nodes[c + j - 1]));
+                    chunk.push_back(relative(root));
+                    for (uint32_t j = 1; j < blk.size; ++j) chunk.push_back(relative(b.nodes[c + j - 1]));
                     a.blocks.push_back(blk);
                     ++blocks;
                     // Mark the subtree covered.
