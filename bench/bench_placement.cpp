@@ -101,6 +101,32 @@ struct TbbForEach {
     }
 };
 
+// What every driver below starts with: the sequential fallback (as Tbb),
+// then in a task arena of `threads` threads the parallel prepare and
+// body(threads).
+template <class Body>
+void run_in_arena(BuildState& st, Body&& body) {
+    g_probe = {};
+    const uint32_t threads = tbb_threads(st);
+    if (!threads) return Sequential::run(st);
+    st.stats.threads_used = threads;
+    tbb::task_arena arena(static_cast<int>(threads));
+    arena.execute([&] {
+        sched::prepare_parallel(st, TbbForEach{});
+        body(threads);
+    });
+}
+
+// The output node array, on huge pages as the library's place_nodes()
+// allocates it, timed on its own (the same for every approach).
+inline void allocate_nodes(BuildState& st, size_t total) {
+    const auto t0 = Clock::now();
+    st.bvh.nodes.reserve(total);
+    advise_huge_pages(st.bvh.nodes.data(), total * sizeof(Node));
+    st.bvh.nodes.resize(total);
+    g_probe.alloc_ms = ms_since(t0);
+}
+
 // ---------------------------------------------------------------------------
 // Arithmetic placement of every node: how the library's parallel drivers
 // placed nodes before they adopted blocks (schedulers/tbb.h as it was, kept
@@ -118,13 +144,7 @@ struct TbbArith {
     };
 
     static void run(BuildState& st) {
-        g_probe = {};
-        const uint32_t threads = tbb_threads(st);
-        if (!threads) return Sequential::run(st);
-        st.stats.threads_used = threads;
-        tbb::task_arena arena(static_cast<int>(threads));
-        arena.execute([&] {
-            sched::prepare_parallel(st, TbbForEach{});
+        run_in_arena(st, [&](uint32_t threads) {
             std::vector<Worker> workers(static_cast<size_t>(tbb::this_task_arena::max_concurrency()));
             Builder b{st.context(), st.n, threads, workers};
             b.task(st.root);
@@ -138,12 +158,7 @@ struct TbbArith {
                 total += wk.records.size();
                 st.stats.skipped.add(wk.skip);
             }
-            // The output node array, timed on its own.
-            const auto t0 = Clock::now();
-            st.bvh.nodes.reserve(total);  // on huge pages, as the library's place_nodes()
-            advise_huge_pages(st.bvh.nodes.data(), total * sizeof(Node));
-            st.bvh.nodes.resize(total);
-            g_probe.alloc_ms = ms_since(t0);
+            allocate_nodes(st, total);
             const auto t1 = Clock::now();
             LeafRank rank(st.n);
             TbbForEach{}(static_cast<uint32_t>(workers.size()), [&](uint32_t i) {
@@ -240,13 +255,7 @@ struct TbbRenumberT {
     static constexpr const char* name = kBlocks ? "tbb_renumber" : "tbb_renumber_pernode";
 
     static void run(BuildState& st) {
-        g_probe = {};
-        const uint32_t threads = tbb_threads(st);
-        if (!threads) return Sequential::run(st);
-        st.stats.threads_used = threads;
-        tbb::task_arena arena(static_cast<int>(threads));
-        arena.execute([&] {
-            sched::prepare_parallel(st, TbbForEach{});
+        run_in_arena(st, [&](uint32_t threads) {
             // Slots are indexed by the arena's thread index, unique per thread.
             std::vector<Worker> workers(static_cast<size_t>(tbb::this_task_arena::max_concurrency()));
             for (size_t i = 0; i < workers.size(); ++i) workers[i].id = static_cast<uint32_t>(i);
@@ -259,11 +268,7 @@ struct TbbRenumberT {
             }
             size_t total = 0;
             for (const Worker& wk : workers) total += wk.entries.size() + wk.nodes.size();
-            const auto t0 = Clock::now();
-            st.bvh.nodes.reserve(total);  // on huge pages, as the library's place_nodes()
-            advise_huge_pages(st.bvh.nodes.data(), total * sizeof(Node));
-            st.bvh.nodes.resize(total);
-            g_probe.alloc_ms = ms_since(t0);
+            allocate_nodes(st, total);
             const auto t1 = Clock::now();
             place(st, workers, root);
             g_probe.place_ms = ms_since(t1);
@@ -352,33 +357,7 @@ private:
             const TraceScope trace(ctx.trace, root, wk.id, TraceSpan::Inline);
             std::vector<Node>& nodes = wk.nodes;
             const size_t first = nodes.size();
-            nodes.emplace_back();
-            struct Item {
-                NodeTask task;
-                uint32_t node;  // relative to `first`
-            };
-            Item stack[2 * (kMaxDepthCap + 2)];
-            uint32_t top = 0;
-            stack[top++] = {root, 0};
-            NodeTask children[2];
-            while (top) {
-                const Item it = stack[--top];
-                const bool split = run_node(ctx, it.task, children, *wk.bins, wk.skip);
-                Node& node = nodes[first + it.node];
-                node.set_box(it.task.bounds);
-                if (!split) {
-                    node.index = it.task.begin;
-                    node.count = it.task.size();
-                    continue;
-                }
-                const uint32_t c = static_cast<uint32_t>(nodes.size() - first);
-                node.index = c;
-                node.count = 0;
-                nodes.emplace_back();  // `node` is not used past this point
-                nodes.emplace_back();
-                stack[top++] = {children[1], c + 1};
-                stack[top++] = {children[0], c};
-            }
+            build_depth_first(ctx, root, nodes, *wk.bins, wk.skip, wk.id);
             wk.blocks.push_back({static_cast<uint32_t>(first), static_cast<uint32_t>(nodes.size() - first)});
             return {static_cast<uint16_t>(wk.id), 1, static_cast<uint32_t>(wk.blocks.size() - 1)};
         }
