@@ -25,7 +25,7 @@ struct SchedulerTuning {
 
 struct BuildOptions {
     // Bins per axis (2..256). Nodes with few primitives use fewer bins:
-    // bins_for(n) = min(bins, max(4, bit_ceil(n) / 2)), and never fewer than 2.
+    // bins_for(n) = min(bins, max(4, bit_ceil(n) / 4)), and never fewer than 2.
     uint32_t bins = 32;  // chosen from `canopy sweep` on the shared meshes: see README, "Accuracy"
     // Largest leaf (1..255): a hard cap.
     uint32_t max_leaf = 4;

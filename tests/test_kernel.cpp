@@ -119,11 +119,12 @@ TEST(KernelBinsFor, RuleValues) {
     struct Row {
         uint32_t n, b16, b256, b2;
     };
-    // min(bins, max(4, bit_ceil(n) / 2)), at least 2.
+    // min(bins, max(4, bit_ceil(n) / 4)), at least 2.
     const Row rows[] = {
         {1, 4, 4, 2},     {2, 4, 4, 2},     {3, 4, 4, 2},     {4, 4, 4, 2},
-        {8, 4, 4, 2},     {16, 8, 8, 2},    {17, 16, 16, 2},  {32, 16, 16, 2},
-        {64, 16, 32, 2},  {65, 16, 64, 2},  {1000, 16, 256, 2},
+        {8, 4, 4, 2},     {16, 4, 4, 2},    {17, 8, 8, 2},    {32, 8, 8, 2},
+        {33, 16, 16, 2},  {64, 16, 16, 2},  {65, 16, 32, 2},  {128, 16, 32, 2},
+        {129, 16, 64, 2}, {1000, 16, 256, 2},
     };
     for (const Row& r : rows) {
         EXPECT_EQ(canopy::bins_for(r.n, 16), r.b16) << "n=" << r.n;
@@ -133,8 +134,8 @@ TEST(KernelBinsFor, RuleValues) {
     // Other configured bin counts.
     EXPECT_EQ(canopy::bins_for(1000, 3), 3u);
     EXPECT_EQ(canopy::bins_for(5, 3), 3u);
-    EXPECT_EQ(canopy::bins_for(129, 100), 100u);
-    EXPECT_EQ(canopy::bins_for(128, 100), 64u);
+    EXPECT_EQ(canopy::bins_for(257, 100), 100u);
+    EXPECT_EQ(canopy::bins_for(256, 100), 64u);
     EXPECT_EQ(canopy::bins_for(1u << 20, 256), 256u);
     EXPECT_EQ(canopy::bins_for(1u << 31, 256), 256u);
 }
