@@ -29,7 +29,7 @@
 //
 // Renumbering blocks this way was measured against placing every node by
 // arithmetic (bench/bench_placement.cpp, README "The schedulers"): the final
-// pass took 0.2 to 0.35 times as long, whole 2-thread builds 0.90 to 0.97
+// pass took 0.27 to 0.37 times as long, whole 2-thread builds 0.87 to 0.96
 // times, and workers store 32 bytes per node instead of 40.
 #pragma once
 
