@@ -52,8 +52,9 @@ public:
     std::vector<TraceSpan>& spans() { return spans_; }
     const std::vector<TraceSpan>& spans() const { return spans_; }
 
-    // Gives every span its canonical node index (the same arithmetic as
-    // place_records, over the finished tree's leaves). Called by the build.
+    // Gives every span its canonical node index (the arithmetic that
+    // place_nodes() uses for task nodes, over the finished tree's leaves).
+    // Called by the build.
     void resolve(const std::vector<Node>& nodes, uint32_t primitive_count) {
         LeafRank rank(primitive_count);
         for (const Node& n : nodes)
