@@ -121,8 +121,7 @@ void run_in_arena(BuildState& st, Body&& body) {
 // allocates it, timed on its own (the same for every approach).
 inline void allocate_nodes(BuildState& st, size_t total) {
     const auto t0 = Clock::now();
-    st.bvh.nodes.reserve(total);
-    advise_huge_pages(st.bvh.nodes.data(), total * sizeof(Node));
+    reserve_on_huge_pages(st.bvh.nodes, total);
     st.bvh.nodes.resize(total);
     g_probe.alloc_ms = ms_since(t0);
 }

@@ -46,8 +46,7 @@ Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
                           std::to_string(ceil_log2(static_cast<uint32_t>(leaves_needed))) + ")");
     st.refs.allocate(count);
     st.scratch.allocate(count);
-    st.bvh.permutation.reserve(count);
-    advise_huge_pages(st.bvh.permutation.data(), count * sizeof(uint32_t));
+    reserve_on_huge_pages(st.bvh.permutation, count);
     st.bvh.permutation.resize(count);
     S::run(st);
     if (st.trace) st.trace->resolve(st.bvh.nodes, st.n);

@@ -128,8 +128,7 @@ struct PlacementArena {
         const size_t need = 2 * size_t(primitives);
         if (chunks.empty() || chunks.back().capacity() - chunks.back().size() < need) {
             const size_t cap = std::max(chunk_nodes, need);
-            chunks.emplace_back().reserve(cap);
-            advise_huge_pages(chunks.back().data(), cap * sizeof(Node));
+            reserve_on_huge_pages(chunks.emplace_back(), cap);
         }
         return chunks.back();
     }
@@ -215,22 +214,9 @@ void place_nodes(std::span<const PlacementArena* const> arenas, std::vector<Node
     }
     rank.finish();
     nodes.clear();
-    nodes.reserve(total);
-    advise_huge_pages(nodes.data(), total * sizeof(Node));
+    reserve_on_huge_pages(nodes, total);
     nodes.resize(total);
     for_each(arenas.size(), [&](size_t i) { place_arena(*arenas[i], rank, nodes.data()); });
-}
-
-// Records only (every node run as a task): the same placement.
-template <class ForEach>
-void place_records(std::span<const std::vector<NodeRecord>> records, std::vector<Node>& nodes, ForEach&& for_each) {
-    std::vector<PlacementArena> arenas(records.size());
-    std::vector<const PlacementArena*> views;
-    for (size_t i = 0; i < records.size(); ++i) {
-        arenas[i].records = records[i];
-        views.push_back(&arenas[i]);
-    }
-    place_nodes(std::span<const PlacementArena* const>(views), nodes, for_each);
 }
 
 }  // namespace canopy

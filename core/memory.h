@@ -10,6 +10,7 @@
 #pragma once
 
 #include <cstddef>
+#include <vector>
 
 namespace canopy {
 
@@ -18,5 +19,13 @@ namespace canopy {
 // no-op for arrays under 4 MiB, outside Linux, or when the kernel declines
 // (huge pages disabled). Never changes the memory's contents.
 void advise_huge_pages(void* p, std::size_t bytes) noexcept;
+
+// Reserves room for n elements in `v` and advises huge pages on it, before
+// anything touches that memory.
+template <class T>
+void reserve_on_huge_pages(std::vector<T>& v, std::size_t n) {
+    v.reserve(n);
+    advise_huge_pages(v.data(), v.capacity() * sizeof(T));
+}
 
 }  // namespace canopy

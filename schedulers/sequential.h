@@ -29,8 +29,7 @@ private:
         nodes.clear();
         // Typical trees have 0.9 to 1.1 nodes per primitive (leaves of up to
         // 4); a tree that needs more grows the array once.
-        nodes.reserve(size_t(st.n) + st.n / 8 + 64);
-        advise_huge_pages(nodes.data(), nodes.capacity() * sizeof(Node));
+        reserve_on_huge_pages(nodes, size_t(st.n) + st.n / 8 + 64);
         auto bins = std::make_unique<BinSet>();
         build_depth_first(st.context(), st.root, nodes, *bins, st.stats.skipped, 0);
     }

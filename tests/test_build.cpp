@@ -597,9 +597,16 @@ struct ReverseForEach {
     }
 };
 
-std::vector<Node> place(const std::vector<std::vector<NodeRecord>>& arenas) {
+// Places arenas that hold records only (every node run as a task).
+std::vector<Node> place(const std::vector<std::vector<NodeRecord>>& records) {
+    std::vector<canopy::PlacementArena> arenas(records.size());
+    std::vector<const canopy::PlacementArena*> views;
+    for (size_t i = 0; i < records.size(); ++i) {
+        arenas[i].records = records[i];
+        views.push_back(&arenas[i]);
+    }
     std::vector<Node> nodes;
-    canopy::place_records(std::span<const std::vector<NodeRecord>>(arenas), nodes, ReverseForEach{});
+    canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nodes, ReverseForEach{});
     return nodes;
 }
 
