@@ -68,6 +68,7 @@ struct BuildState {
         root.end = n;
         root.bounds = s.bounds;
         root.cbounds = s.cbounds;
+        root.max_area = s.max_area;
     }
 };
 

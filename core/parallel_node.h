@@ -40,8 +40,8 @@ public:
     }
 
     // Serial: merges the bins and evaluates; may turn the node into a leaf.
-    void decide() {
-        splits_ = decide_impl();
+    void decide(SkipCounts& skip) {
+        splits_ = decide_impl(skip);
         if (!splits_) write_leaf(ctx_, t_);
     }
 
@@ -57,12 +57,15 @@ private:
                 plan_ = Plan::Middle;
             } else {
                 skip.axes_not_binned += 3 - (m_.valid[0] + m_.valid[1] + m_.valid[2]);
+                cuts_ = SizeCuts::of(t_.bounds);
+                sizes_ = cuts_.applies(t_);
             }
         }
         ++skip.parallel_nodes;
         const uint32_t n = t_.size();
         chunks_ = plan_ == Plan::Sah ? (n + kBinChunk - 1) / kBinChunk : 0;
         if (chunks_ > chunk_bins_.size()) chunk_bins_.resize(chunks_);
+        chunk_sizes_.assign(sizes_ ? chunks_ : 0, SizeBins{});
         for (uint32_t i = 0; i < chunks_; ++i)
             if (!chunk_bins_[i]) chunk_bins_[i] = std::make_unique<BinSet>();
         blocks_ = (n + kPartitionBlock - 1) / kPartitionBlock;
@@ -70,10 +73,15 @@ private:
         return true;
     }
 
-    bool decide_impl() {
+    bool decide_impl(SkipCounts& skip) {
         if (plan_ != Plan::Sah) return true;
         for (uint32_t i = 1; i < chunks_; ++i) chunk_bins_[0]->merge(*chunk_bins_[i], m_.bins);
         split_ = evaluate(*chunk_bins_[0], m_, t_.bounds, *ctx_.options);
+        if (sizes_) {
+            for (uint32_t i = 1; i < chunks_; ++i) chunk_sizes_[0].merge(chunk_sizes_[i]);
+            consider_size_split(chunk_sizes_[0], cuts_, t_.bounds, *ctx_.options, split_);
+            skip.size_splits += split_.by_size();
+        }
         if (sah_says_leaf(split_, t_.size(), *ctx_.options)) return false;
         if (!split_.found()) plan_ = Plan::Middle;
         return true;
@@ -87,6 +95,7 @@ public:
         b.clear(m_.bins);
         const uint32_t lo = t_.begin + i * kBinChunk, hi = std::min(t_.end, lo + kBinChunk);
         bin(ctx_.src(t_), lo, hi, m_, b);
+        if (sizes_) bin_sizes(ctx_.src(t_), lo, hi, cuts_, chunk_sizes_[i]);
     }
 
     // Parallel over [0, blocks()): counts one block (or, for a middle split,
@@ -153,9 +162,12 @@ private:
     Plan plan_ = Plan::Leaf;
     bool splits_ = false;
     BinMapper m_;
+    SizeCuts cuts_;
+    bool sizes_ = false;  // the size split is offered (SizeCuts::applies)
     Split split_;
     uint32_t chunks_ = 0, blocks_ = 0;
     std::vector<std::unique_ptr<BinSet>> chunk_bins_;
+    std::vector<SizeBins> chunk_sizes_;
     std::vector<PartitionResult> block_;
     std::vector<uint32_t> left_at_, right_at_;
     PartitionResult result_;
@@ -180,7 +192,7 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
     phase(TraceSpan::Start, [&] { serial([&] { pn.start(skip); }); });
     if (!pn.splits()) return false;
     phase(TraceSpan::Bin, [&] { for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); }); });
-    phase(TraceSpan::Evaluate, [&] { serial([&] { pn.decide(); }); });
+    phase(TraceSpan::Evaluate, [&] { serial([&] { pn.decide(skip); }); });
     if (!pn.splits()) return false;
     phase(TraceSpan::Count, [&] { for_each(pn.blocks(), [&](uint32_t i) { pn.count_block(i); }); });
     phase(TraceSpan::Prefix, [&] { serial([&] { pn.prefix(); }); });

@@ -3,6 +3,7 @@
 #include "error.h"
 #include "options.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -18,7 +19,8 @@ void record(PrimRef& r, PrepareSummary& s, const Vec3& lo, const Vec3& hi, size_
     r.lo = canonical(lo);
     r.hi = canonical(hi);
     r.id = static_cast<uint32_t>(id);
-    r.pad = 0;
+    r.area = prim_area(r.lo, r.hi);
+    s.max_area = std::max(s.max_area, r.area);
     s.bounds.lo = glm::min(s.bounds.lo, r.lo);
     s.bounds.hi = glm::max(s.bounds.hi, r.hi);
     s.cbounds.extend(centroid(r));

@@ -7,21 +7,25 @@
 #include "geometry.h"
 #include "mesh.h"
 
+#include <algorithm>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
 namespace canopy {
 
-// One 32-byte record per input primitive: its box and its (uint32) id. The
-// kernel partitions these records themselves, so every node streams through
-// a contiguous range of them. -0 is stored as +0. The id sits in its own
-// integer field, never in a float lane that arithmetic touches.
+// One 32-byte record per input primitive: its box, its (uint32) id and the
+// box's half area. The kernel partitions these records themselves, so every
+// node streams through a contiguous range of them. -0 is stored as +0. The id
+// and the area sit in the fourth lanes, which no arithmetic touches: the
+// kernel masks them off before computing with a box (the id's bits as a float
+// would be a slow subnormal), and only compares and takes maxima of the area.
 struct alignas(16) PrimRef {
     Vec3 lo;
     uint32_t id;
     Vec3 hi;
-    uint32_t pad;
+    float area;  // see prim_area()
 };
 static_assert(sizeof(PrimRef) == 32);
 
@@ -31,17 +35,32 @@ static_assert(sizeof(PrimRef) == 32);
 // function defines it for prepare, bin and partition alike.
 inline Vec3 centroid(const PrimRef& r) { return r.lo * 0.5f + r.hi * 0.5f + 0.0f; }
 
+// The area stored in a record: the box's half area, computed in double (no
+// overflow, no NaN) and rounded to float, saturated at the largest float, and
+// 0 below the smallest normal float (so it is never subnormal). Used only to
+// find a node's large primitives (see the size split in kernel.h).
+inline float prim_area(const Vec3& lo, const Vec3& hi) {
+    const double dx = double(hi.x) - double(lo.x), dy = double(hi.y) - double(lo.y),
+                 dz = double(hi.z) - double(lo.z);
+    const double a = dx * dy + dy * dz + dz * dx;
+    if (!(a >= double(std::numeric_limits<float>::min()))) return 0.0f;
+    return static_cast<float>(std::min(a, double(std::numeric_limits<float>::max())));
+}
+
 // What a range of primitives produced: the union of their boxes and of their
-// centroids, and the first primitive (lowest index) that was rejected.
+// centroids, the largest record area, and the first primitive (lowest index)
+// that was rejected.
 struct PrepareSummary {
     static constexpr uint64_t kNone = ~uint64_t(0);
     Box bounds;
     Box cbounds;
+    float max_area = 0.0f;
     uint64_t first_bad = kNone;
 
     void merge(const PrepareSummary& o) {
         bounds.extend(o.bounds);
         cbounds.extend(o.cbounds);
+        max_area = std::max(max_area, o.max_area);
         if (o.first_bad < first_bad) first_bad = o.first_bad;
     }
 };

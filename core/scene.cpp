@@ -210,6 +210,34 @@ TriangleMesh generate_stadium(uint64_t count, uint64_t /*seed*/) {
     return mesh;
 }
 
+// A room like the Cornell box scenes: five walls of [-1, 1]^3 (floor,
+// ceiling, back, left, right; the front open), each one quad of two large
+// triangles, a small light quad just below the ceiling, and a dense sphere of
+// radius 0.3 floating in the middle (count - 12 triangles, about). Twelve
+// primitives far larger than all the others, with centroids among theirs:
+// the case the size split is for (see SizeCuts in kernel.h).
+TriangleMesh generate_room(uint64_t count, uint64_t /*seed*/) {
+    TriangleMesh mesh;
+    append_sphere(mesh, count > 12 ? count - 12 : 1, 0.3);
+    for (Vec3& v : mesh.vertices) v += Vec3(0.05f, -0.1f, -0.15f);
+    // Quad corners counter-clockwise seen from inside the room.
+    const double quads[6][4][3] = {
+        {{-1, -1, -1}, {-1, -1, 1}, {1, -1, 1}, {1, -1, -1}},                  // floor
+        {{-1, 1, -1}, {1, 1, -1}, {1, 1, 1}, {-1, 1, 1}},                      // ceiling
+        {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1}},                  // back
+        {{-1, -1, -1}, {-1, 1, -1}, {-1, 1, 1}, {-1, -1, 1}},                  // left
+        {{1, -1, -1}, {1, -1, 1}, {1, 1, 1}, {1, 1, -1}},                      // right
+        {{-0.4, 0.98, -0.3}, {0.4, 0.98, -0.3}, {0.4, 0.98, 0.3}, {-0.4, 0.98, 0.3}},  // light
+    };
+    for (const auto& q : quads) {
+        const uint64_t base = mesh.vertices.size();
+        for (const auto& p : q) mesh.vertices.push_back(make_vec(p[0], p[1], p[2]));
+        push_triangle(mesh, base, base + 1, base + 2);
+        push_triangle(mesh, base, base + 2, base + 3);
+    }
+    return mesh;
+}
+
 // An nx x ny grid of quads (two triangles each) over [-1, 1]^2 in z = 0.
 TriangleMesh generate_plane(uint64_t count, uint64_t /*seed*/) {
     const uint64_t nx = round_at_least(std::sqrt(static_cast<double>(count) / 2.0), 1);
@@ -254,6 +282,7 @@ constexpr Generator kGenerators[] = {
     {"stadium", &generate_stadium},
     {"plane", &generate_plane},
     {"coincident", &generate_coincident},
+    {"room", &generate_room},
 };
 
 const Generator* find_generator(std::string_view name) {

@@ -9,6 +9,8 @@
 //   stadium    a dense sphere inside a huge box of large triangles
 //   plane      a planar grid (all z = 0)
 //   coincident COUNT identical triangles
+//   room       a dense sphere on the floor of a five-wall room of ten large
+//              triangles (like the Cornell box scenes)
 // Every loader throws InputError whose message starts with the file name and
 // names the line or element that is wrong.
 #pragma once

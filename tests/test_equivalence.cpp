@@ -83,6 +83,7 @@ const std::vector<NamedMesh>& matrix_scenes() {
         s.push_back({"coincident", generate("coincident", 3000, 1)});
         s.push_back({"tiny", scaled(generate("random", 8000, 3), 1e-30f)});
         s.push_back({"few", generate("random", 100, 5)});
+        s.push_back({"room", generate("room", 20000, 1)});  // size splits, one at the root
         return s;
     }();
     return scenes;
@@ -93,9 +94,12 @@ TEST(Equivalence, FullMatrixOnGeneratedScenes) {
         const TriangleView view = scene.mesh.view();
         for (uint32_t bins : {2u, 8u, 16u, 64u}) {
             const BuildOptions seq_opt = small_tuning(bins, 1);
-            const Bvh ref = build<Sequential>(view, seq_opt);
+            BuildStats seq_stats;
+            const Bvh ref = build<Sequential>(view, seq_opt, &seq_stats);
             const ValidationReport rep = validate(ref, view, seq_opt);
             ASSERT_TRUE(rep.ok()) << scene.name << " bins " << bins << ": " << rep.summary();
+            // The room exercises the size split, also at the team-parallel root.
+            if (scene.name == "room") EXPECT_GT(seq_stats.skipped.size_splits, 0u) << "bins " << bins;
             for (const SchedulerEntry& s : tested_schedulers()) {
                 for (uint32_t threads : {1u, 2u, 3u, 4u, 8u}) {
                     const BuildOptions opt = small_tuning(bins, threads);

@@ -66,7 +66,7 @@ bool same_arrays(const TriangleMesh& a, const TriangleMesh& b) {
 
 TEST(SceneGenerators, NamesAndSpecs) {
     const std::vector<std::string> names = generator_names();
-    const std::vector<std::string> expected = {"sphere", "random", "stadium", "plane", "coincident"};
+    const std::vector<std::string> expected = {"sphere", "random", "stadium", "plane", "coincident", "room"};
     EXPECT_EQ(std::set<std::string>(names.begin(), names.end()),
               std::set<std::string>(expected.begin(), expected.end()));
     EXPECT_TRUE(is_generator_spec("gen:sphere:100"));
@@ -206,6 +206,24 @@ TEST(SceneGenerators, CoincidentTrianglesAreIdentical) {
     EXPECT_GT(twice_area(mesh, 0), 0.0);
     for (size_t t = 1; t < mesh.triangle_count(); ++t) {
         for (int c = 0; c < 3; ++c) EXPECT_EQ(mesh.vertex(t, c), mesh.vertex(0, c));
+    }
+}
+
+TEST(SceneGenerators, RoomHasTwelveLargeTrianglesAroundASphere) {
+    const TriangleMesh mesh = generate("room", 5000);
+    expect_valid(mesh);
+    const size_t n = mesh.triangle_count();
+    ASSERT_GT(n, 4900u);
+    ASSERT_LT(n, 5100u);
+    // The last twelve: five walls of [-1, 1]^3 and the light, each half a
+    // quad; every other triangle is a small one of the sphere inside.
+    for (size_t t = 0; t < n; ++t) {
+        if (t >= n - 12) {
+            EXPECT_GE(twice_area(mesh, t), t >= n - 2 ? 0.48 - 1e-6 : 4.0 - 1e-6) << t;
+        } else {
+            EXPECT_LT(twice_area(mesh, t), 0.01) << t;
+            for (int c = 0; c < 3; ++c) EXPECT_LT(glm::length(mesh.vertex(t, c) - Vec3(0.05f, -0.1f, -0.15f)), 0.3001f);
+        }
     }
 }
 

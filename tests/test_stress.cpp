@@ -29,6 +29,7 @@
 #include <cctype>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 #include <mutex>
 #include <numeric>
@@ -850,15 +851,35 @@ TEST(SweepSah, RootSplitIsNoWorseThanBinned) {
     }
 }
 
-// FAILS: binned SAH quality collapses on tiny scenes. BinMapper::make
-// (core/kernel.h) computes the bin scale bins / extent in float; for a
-// centroid extent below about bins / FLT_MAX (4.7e-38 at 16 bins) it
-// overflows, the axis is skipped, and a node with no valid axis is counted
-// as coincident and split in the middle. The trees stay valid, but at scale
-// 1e-37 the SAH is 463 against 97.5 (exact), at 1e-38 and below 8890 (every
-// node a middle split); at 1e-36 the deep nodes already lose axes. The exact
-// builder, in double, is unaffected. The SAH should not depend on the scale
-// while every coordinate is a normal float or a subnormal with a few bits.
+// Large primitives around a detailed object (the Cornell box scenes): binning
+// alone cannot separate them (gen:room:20000 was 16.9% above the exact tree,
+// CBcoil 22%); with the size split (SizeCuts in core/kernel.h) both are at or
+// below it. The shared CBcoil is checked when present.
+TEST(SweepSah, RoomsStayNearTheExactTree) {
+    std::vector<std::pair<std::string, TriangleMesh>> scenes;
+    scenes.emplace_back("gen:room:20000", generate("room", 20000));
+    const std::filesystem::path coil = std::filesystem::path(CANOPY_SCENES_DIR) / "CBcoil.obj";
+    if (std::filesystem::exists(coil)) scenes.emplace_back(coil.string(), load_scene(coil.string()).mesh);
+    else std::printf("[ note ] %s absent: checking the generated room only\n", coil.string().c_str());
+    for (const auto& [name, mesh] : scenes) {
+        BuildStats stats;
+        const Bvh binned = build<Sequential>(mesh.view(), {}, &stats);
+        ASSERT_TRUE(validate(binned, mesh.view()).ok()) << name;
+        const double exact = sah_cost(build_sweep_sah(mesh.view()));
+        EXPECT_LE(sah_cost(binned), 1.015 * exact) << name << ": exact " << exact;
+        EXPECT_GT(stats.skipped.size_splits, 0u) << name;
+    }
+}
+
+// A regression test: binned SAH quality once collapsed on tiny scenes.
+// BinMapper::make (core/kernel.h) computed the bin scale bins / extent in
+// float; for a centroid extent below about bins / FLT_MAX (4.7e-38 at 16
+// bins) it overflowed, the axis was skipped, and a node with no valid axis
+// was counted as coincident and split in the middle: valid trees, but at
+// scale 1e-37 a SAH of 463 against 97.5 (exact), at 1e-38 8890. The mapping
+// now prescales tiny extents by a power of two. The SAH must not depend on
+// the scale while every coordinate is a normal float or a subnormal with a
+// few bits.
 TEST(SweepSah, BinnedQualityDoesNotDependOnTheScale) {
     const TriangleMesh unit = generate("random", 20000, 3);
     const double unit_sah = sah_cost(build<Sequential>(unit.view()));

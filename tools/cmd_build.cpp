@@ -109,6 +109,7 @@ int run_build(const BuildArgs& a) {
         sk["parallel_nodes"] = stats.skipped.parallel_nodes;
         sk["bound_leaves"] = stats.skipped.bound_leaves;
         j["skipped"] = sk;
+        j["size_splits"] = stats.skipped.size_splits;
         std::cout << j.dump() << "\n";
     } else {
         std::printf("scene      %s (%s)\n", scene.name.c_str(), scene.format.c_str());
