@@ -72,12 +72,21 @@ struct SkipCounts {
     }
 };
 
+// Nodes of at least this many primitives are binned with twice the bins.
+inline constexpr uint32_t kWideBinsMin = 1u << 16;
+
 // Bins for a node of n primitives: min(bins, max(4, bit_ceil(n) / 4)), and at
-// least 2. Small nodes, which are most nodes, use fewer bins: clearing and
-// sweeping bins is the fixed cost of a node (with bit_ceil(n) / 2, nodes of 5
-// to 64 primitives took 43% of a 1M-sphere build at 600 to 3,700 cycles per
-// node; a quarter keeps about 4 primitives per bin).
+// least 2; from kWideBinsMin primitives up, min(256, 2 * bins).
+// Small nodes, which are most nodes, use fewer bins: clearing and sweeping
+// bins is the fixed cost of a node (with bit_ceil(n) / 2, nodes of 5 to 64
+// primitives took 43% of a 1M-sphere build at 600 to 3,700 cycles per node; a
+// quarter keeps about 4 primitives per bin). The few huge nodes near the root
+// use more: their cost is the pass over their records, not the bins, and they
+// are where an object far smaller than the node must not be cut by a bin
+// boundary (the 1M stadium's dense sphere sat across the middle boundary of
+// the root's 32 bins: SAH 35.19, with 64 there 32.68).
 inline uint32_t bins_for(uint32_t n, uint32_t bins) {
+    if (n >= kWideBinsMin) return std::min(kMaxBins, 2 * bins);
     const uint32_t quarter = n >= 2 ? std::bit_floor(n - 1) / 2 : 0;  // bit_ceil(n) / 4 without overflow
     return std::max(kMinBins, std::min(bins, std::max(4u, quarter)));
 }

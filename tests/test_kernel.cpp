@@ -119,12 +119,14 @@ TEST(KernelBinsFor, RuleValues) {
     struct Row {
         uint32_t n, b16, b256, b2;
     };
-    // min(bins, max(4, bit_ceil(n) / 4)), at least 2.
+    // min(bins, max(4, bit_ceil(n) / 4)), at least 2; from 2^16 on,
+    // min(256, 2 * bins).
     const Row rows[] = {
         {1, 4, 4, 2},     {2, 4, 4, 2},     {3, 4, 4, 2},     {4, 4, 4, 2},
         {8, 4, 4, 2},     {16, 4, 4, 2},    {17, 8, 8, 2},    {32, 8, 8, 2},
         {33, 16, 16, 2},  {64, 16, 16, 2},  {65, 16, 32, 2},  {128, 16, 32, 2},
-        {129, 16, 64, 2}, {1000, 16, 256, 2},
+        {129, 16, 64, 2}, {1000, 16, 256, 2}, {65535, 16, 256, 2}, {65536, 32, 256, 4},
+        {1u << 20, 32, 256, 4},
     };
     for (const Row& r : rows) {
         EXPECT_EQ(canopy::bins_for(r.n, 16), r.b16) << "n=" << r.n;
@@ -138,6 +140,8 @@ TEST(KernelBinsFor, RuleValues) {
     EXPECT_EQ(canopy::bins_for(256, 100), 64u);
     EXPECT_EQ(canopy::bins_for(1u << 20, 256), 256u);
     EXPECT_EQ(canopy::bins_for(1u << 31, 256), 256u);
+    EXPECT_EQ(canopy::bins_for(canopy::kWideBinsMin, 100), 200u);
+    EXPECT_EQ(canopy::bins_for(canopy::kWideBinsMin, 129), 256u);
 }
 
 // Regression test for a fixed bug: kMaxPrimitives allows counts up to
@@ -148,7 +152,7 @@ TEST(KernelBinsFor, CountsAbove2To31) {
     volatile uint32_t big = 0x80000001u;  // volatile: keep it a run-time value
     EXPECT_EQ(canopy::bins_for(big, 256), 256u);
     big = 0xFFFFFFFEu;
-    EXPECT_EQ(canopy::bins_for(big, 16), 16u);
+    EXPECT_EQ(canopy::bins_for(big, 16), 32u);  // twice, as every node of 2^16 or more
 }
 
 // ---------------------------------------------------------------- BinMapper
