@@ -29,14 +29,19 @@ inline uint32_t resolve_threads(uint32_t asked) {
     return hw ? hw : 1;
 }
 
+// Builds into st.bvh (whose arrays' memory is reused).
 template <Scheduler S>
-Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
+void build_into(BuildState& st, size_t count, BuildStats* stats) {
     st.options.check();
     st.threads = resolve_threads(st.options.threads);
     st.n = static_cast<uint32_t>(count);
+    st.stats = BuildStats{};
+    st.root = NodeTask{};
+    st.bvh.nodes.clear();
+    st.bvh.permutation.clear();
     if (count == 0) {
         if (stats) *stats = BuildStats{};
-        return {};
+        return;
     }
     const uint64_t leaves_needed = (uint64_t(st.n) + st.options.max_leaf - 1) / st.options.max_leaf;
     if (ceil_log2(static_cast<uint32_t>(leaves_needed)) > st.options.max_depth)
@@ -51,6 +56,11 @@ Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
     S::run(st);
     if (st.trace) st.trace->resolve(st.bvh.nodes, st.n);
     if (stats) *stats = st.stats;
+}
+
+template <Scheduler S>
+Bvh run_build(BuildState& st, size_t count, BuildStats* stats) {
+    build_into<S>(st, count, stats);
     return std::move(st.bvh);
 }
 
@@ -83,5 +93,53 @@ Bvh build(std::span<const Box> boxes, const BuildOptions& options = {}, BuildSta
     st.trace = trace;
     return detail::run_build<S>(st, boxes.size(), stats);
 }
+
+// A builder that keeps its memory between builds: the primitive records, the
+// partition's second buffer, the parallel drivers' per-thread bins and node
+// chunks, and one tree's arrays. It builds the same trees as build<S>(); a
+// build no bigger than an earlier one allocates almost nothing (a "warm"
+// build: `canopy build --warm`). One build at a time per Builder.
+//
+//   canopy::Builder<canopy::Tbb> builder;
+//   canopy::Bvh bvh;
+//   for (const auto& frame : frames) builder.build(frame.view(), bvh, options);
+//
+// On success `out` holds the new tree, and the builder keeps the arrays `out`
+// had, for the next build; on an exception (the same errors as build<S>())
+// `out` is left as it was.
+template <Scheduler S>
+class Builder {
+public:
+    void build(const TriangleView& mesh, Bvh& out, const BuildOptions& options = {}, BuildStats* stats = nullptr,
+               TraceLog* trace = nullptr) {
+        check_triangle_input(mesh);
+        start(options, trace);
+        st_.mesh = &mesh;
+        finish(mesh.triangle_count(), out, stats);
+    }
+    void build(std::span<const Box> boxes, Bvh& out, const BuildOptions& options = {}, BuildStats* stats = nullptr,
+               TraceLog* trace = nullptr) {
+        check_box_input(boxes);
+        start(options, trace);
+        st_.boxes = boxes;
+        finish(boxes.size(), out, stats);
+    }
+
+private:
+    void start(const BuildOptions& options, TraceLog* trace) {
+        st_.options = options;
+        st_.trace = trace;
+        st_.mesh = nullptr;
+        st_.boxes = {};
+    }
+    void finish(size_t count, Bvh& out, BuildStats* stats) {
+        detail::build_into<S>(st_, count, stats);
+        std::swap(out, st_.bvh);
+        st_.mesh = nullptr;
+        st_.trace = nullptr;
+    }
+
+    BuildState st_;
+};
 
 }  // namespace canopy

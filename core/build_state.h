@@ -8,6 +8,7 @@
 #include "options.h"
 #include "primitives.h"
 #include "trace.h"
+#include "workers.h"
 
 #include <cstdint>
 #include <memory>
@@ -23,13 +24,16 @@ struct BuildStats {
 
 // An array that is not zero-filled on allocation (every slot is written by
 // the build before it is read), on huge pages where the system allows.
+// allocate() keeps the memory it has when that is big enough (warm builds).
 template <class T>
 struct RawArray {
     std::unique_ptr<T[]> data;
-    size_t size = 0;
+    size_t capacity = 0;
     void allocate(size_t n) {
+        if (n <= capacity && data) return;
+        data.reset();  // the old array goes before the new one comes
         data.reset(new T[n]);
-        size = n;
+        capacity = n;
         advise_huge_pages(data.get(), n * sizeof(T));
     }
     T* get() const { return data.get(); }
@@ -45,6 +49,7 @@ struct BuildState {
 
     RawArray<PrimRef> refs;     // the records (buffer 0)
     RawArray<PrimRef> scratch;  // the partition's second buffer (buffer 1)
+    Workers workers;            // the parallel drivers' per-thread scratch
     Bvh bvh;
     NodeTask root;
     BuildStats stats;

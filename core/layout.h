@@ -119,6 +119,7 @@ struct PlacementArena {
     std::vector<std::vector<Node>> chunks;  // the blocks' nodes, block after block
     std::vector<SubtreeBlock> blocks;
     size_t chunk_nodes = size_t(1) << 17;   // usual chunk size (4 MiB)
+    std::vector<std::vector<Node>> spare;   // emptied chunks of earlier builds
 
     // Node storage for a subtree of `primitives` primitives (at most
     // 2 * primitives - 1 nodes): the last chunk when it has room, else a new
@@ -128,9 +129,28 @@ struct PlacementArena {
         const size_t need = 2 * size_t(primitives);
         if (chunks.empty() || chunks.back().capacity() - chunks.back().size() < need) {
             const size_t cap = std::max(chunk_nodes, need);
-            reserve_on_huge_pages(chunks.emplace_back(), cap);
+            if (!spare.empty() && spare.back().capacity() >= cap) {
+                chunks.push_back(std::move(spare.back()));
+                spare.pop_back();
+            } else {
+                reserve_on_huge_pages(chunks.emplace_back(), cap);
+            }
         }
         return chunks.back();
+    }
+    // Empties the arena for another build; the chunks' memory is kept for
+    // chunk_for() to reuse.
+    void reset() {
+        records.clear();
+        blocks.clear();
+        for (auto& c : chunks) {
+            c.clear();
+            spare.push_back(std::move(c));
+        }
+        chunks.clear();
+        // Largest last, the one chunk_for() looks at.
+        std::sort(spare.begin(), spare.end(),
+                  [](const std::vector<Node>& a, const std::vector<Node>& b) { return a.capacity() < b.capacity(); });
     }
     size_t node_count() const {
         size_t n = records.size();

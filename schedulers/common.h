@@ -10,6 +10,7 @@
 #include "../core/layout.h"
 #include "../core/parallel_node.h"
 #include "../core/trace.h"
+#include "../core/workers.h"
 #include "sequential.h"
 
 #include <algorithm>
@@ -36,36 +37,8 @@ inline bool team_parallel(uint32_t size, uint32_t n, uint32_t threads, const Sch
 
 inline bool below_cutoff(const NodeTask& t, const SchedulerTuning& tu) { return t.size() < tu.task_cutoff; }
 
-// Per-worker scratch: bins, the nodes it created (task records and inline
-// subtree blocks), its counters.
-// One per thread, each on cache lines of its own: the record vector and the
-// skip counters change at every node, and two workers sharing a line made
-// the threads invalidate each other's copy at every node (false sharing).
-struct alignas(64) Worker {
-    std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
-    PlacementArena out;
-    SkipCounts skip;
-    uint32_t id = 0;  // the trace's track
-};
-
-struct Workers {
-    std::vector<Worker> w;
-    // `primitives`: the build's size, which sets the workers' chunk size for
-    // subtree blocks: about a quarter of a worker's share of the nodes (one
-    // node per primitive is typical), between 1 and 16 MiB, so that chunks
-    // waste little on small scenes and are big enough for huge pages on big
-    // ones.
-    Workers(uint32_t count, uint32_t primitives) : w(count) {
-        const size_t share = size_t(primitives) / (4 * size_t(std::max(1u, count)));
-        const size_t chunk = std::clamp<size_t>(share, size_t(1) << 15, size_t(1) << 19);
-        for (uint32_t i = 0; i < count; ++i) {
-            w[i].id = i;
-            w[i].out.chunk_nodes = chunk;
-        }
-    }
-    Worker& operator[](size_t i) { return w[i]; }
-    size_t size() const { return w.size(); }
-};
+using canopy::Worker;
+using canopy::Workers;
 
 // Runs one node task sequentially on worker `wk`, recording it. Returns
 // whether it split. Traced when above the task cutoff.

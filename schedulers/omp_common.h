@@ -95,7 +95,8 @@ template <class Body>
 void omp_build(BuildState& st, uint32_t threads, Body&& body) {
     st.stats.threads_used = threads;
     prepare_parallel(st, OmpLoop{threads});
-    Workers workers(threads, st.n);
+    Workers& workers = st.workers;
+    workers.reset(threads, st.n);
 #pragma omp parallel num_threads(threads)
     {
         body(workers, static_cast<uint32_t>(omp_get_num_threads()));

@@ -13,16 +13,36 @@
 #include "tbb.h"
 #endif
 
+#include <memory>
 #include <span>
 #include <string>
 #include <string_view>
 
 namespace canopy {
 
+// A Builder<S> (core/build.h) behind an interface, for tools that pick the
+// scheduler at run time.
+struct WarmBuilder {
+    virtual ~WarmBuilder() = default;
+    virtual void build(const TriangleView& mesh, Bvh& out, const BuildOptions& options, BuildStats* stats) = 0;
+};
+
+template <Scheduler S>
+struct WarmBuilderOf final : WarmBuilder {
+    Builder<S> builder;
+    void build(const TriangleView& mesh, Bvh& out, const BuildOptions& options, BuildStats* stats) override {
+        builder.build(mesh, out, options, stats);
+    }
+};
+
 struct SchedulerEntry {
     const char* name;
     Bvh (*triangles_fn)(const TriangleView&, const BuildOptions&, BuildStats*, TraceLog*);
     Bvh (*boxes_fn)(std::span<const Box>, const BuildOptions&, BuildStats*, TraceLog*);
+    std::unique_ptr<WarmBuilder> (*warm_fn)();
+
+    // A Builder<S> that keeps its memory between builds.
+    std::unique_ptr<WarmBuilder> make_warm_builder() const { return warm_fn(); }
 
     // canopy::build<S> for this entry's S.
     Bvh build_triangles(const TriangleView& mesh, const BuildOptions& options = {}, BuildStats* stats = nullptr,
@@ -44,7 +64,8 @@ constexpr SchedulerEntry entry() {
             },
             [](std::span<const Box> b, const BuildOptions& o, BuildStats* s, TraceLog* t) {
                 return build<S>(b, o, s, t);
-            }};
+            },
+            []() -> std::unique_ptr<WarmBuilder> { return std::make_unique<WarmBuilderOf<S>>(); }};
 }
 inline constexpr SchedulerEntry kSchedulers[] = {
     entry<Sequential>(),

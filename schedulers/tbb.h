@@ -35,7 +35,8 @@ struct Tbb {
             };
             sched::prepare_parallel(st, for_each);
             // Slots are indexed by the arena's thread index, unique per thread.
-            sched::Workers workers(static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()), st.n);
+            sched::Workers& workers = st.workers;
+            workers.reset(static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()), st.n);
             Builder b{st.context(), st.n, threads, workers};
             b.task(st.root);
             sched::finish_parallel(st, workers, for_each);

@@ -12,6 +12,8 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <limits>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <thread>
@@ -142,6 +144,61 @@ TEST(Equivalence, DefaultTuningOnLargerScenes) {
             }
         }
     }
+}
+
+// A warm builder (canopy::Builder, reached through the registry) builds the
+// same trees as build<S>() over a sequence of scenes of different sizes and
+// options, reusing its memory; on bad input it throws and leaves the
+// caller's tree alone.
+TEST(Equivalence, WarmBuildersMatchBuild) {
+    const TriangleMesh big = generate("sphere", 20000, 1);
+    const TriangleMesh small = generate("random", 500, 3);
+    const TriangleMesh room = generate("room", 20000, 1);
+    const TriangleMesh empty;
+    TriangleMesh bad = generate("random", 300, 4);
+    bad.vertices[100].y = std::numeric_limits<float>::quiet_NaN();
+    struct Step {
+        const TriangleMesh* mesh;
+        uint32_t bins, leaf;
+    };
+    const Step steps[] = {{&big, 16, 4}, {&small, 16, 4}, {&room, 32, 4}, {&empty, 16, 4},
+                          {&big, 8, 1},  {&big, 8, 1},    {&big, 8, 1},   {&small, 256, 7}};
+    for (const SchedulerEntry& s : tested_schedulers()) {
+        const std::unique_ptr<WarmBuilder> builder = s.make_warm_builder();
+        Bvh out;
+        const Node* seen[8] = {};
+        for (size_t k = 0; k < std::size(steps); ++k) {
+            BuildOptions opt = small_tuning(steps[k].bins, 2);
+            opt.max_leaf = steps[k].leaf;
+            BuildStats warm_stats, stats;
+            builder->build(steps[k].mesh->view(), out, opt, &warm_stats);
+            const Bvh ref = s.build_triangles(steps[k].mesh->view(), opt, &stats);
+            expect_same(ref, out, std::string(s.name) + " step " + std::to_string(k));
+            EXPECT_EQ(warm_stats.skipped.bound_leaves, stats.skipped.bound_leaves) << s.name << " step " << k;
+            EXPECT_EQ(warm_stats.skipped.size_splits, stats.skipped.size_splits) << s.name << " step " << k;
+            seen[k] = out.nodes.data();
+            if (::testing::Test::HasFailure()) return;
+        }
+        // Steps 4 to 6 build the same scene: the builder and the caller
+        // swap two node arrays, so step 6 reuses step 4's.
+        EXPECT_EQ(seen[6], seen[4]) << s.name;
+
+        const Bvh before = out;
+        EXPECT_THROW(builder->build(bad.view(), out, small_tuning(16, 2), nullptr), InputError) << s.name;
+        EXPECT_TRUE(out == before) << s.name << ": a failed build changed the caller's tree";
+        builder->build(big.view(), out, small_tuning(16, 2), nullptr);
+        expect_same(s.build_triangles(big.view(), small_tuning(16, 2)), out, std::string(s.name) + " after an error");
+    }
+
+    // Boxes, on the library's Builder directly.
+    std::vector<Box> boxes(small.triangle_count());
+    for (size_t t = 0; t < boxes.size(); ++t)
+        for (int k = 0; k < 3; ++k) boxes[t].extend(small.vertex(t, k));
+    Builder<Sequential> b;
+    Bvh out;
+    b.build(big.view(), out, small_tuning(16, 1));
+    b.build(std::span<const Box>(boxes), out, small_tuning(16, 1));
+    expect_same(build<Sequential>(std::span<const Box>(boxes), small_tuning(16, 1)), out, "boxes");
 }
 
 TEST(Equivalence, BoxInputMatchesToo) {

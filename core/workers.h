@@ -1,0 +1,54 @@
+// canopy: per-worker scratch of the parallel drivers, kept by the build
+// state so that a warm builder (core/builder.h) reuses it between builds.
+#pragma once
+
+#include "kernel.h"
+#include "layout.h"
+
+#include <algorithm>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+namespace canopy {
+
+// Per-worker scratch: bins, the nodes it created (task records and inline
+// subtree blocks), its counters.
+// One per thread, each on cache lines of its own: the record vector and the
+// skip counters change at every node, and two workers sharing a line made
+// the threads invalidate each other's copy at every node (false sharing).
+struct alignas(64) Worker {
+    std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
+    PlacementArena out;
+    SkipCounts skip;
+    uint32_t id = 0;  // the trace's track
+};
+
+struct Workers {
+    std::vector<Worker> w;
+
+    Workers() = default;
+    Workers(uint32_t count, uint32_t primitives) { reset(count, primitives); }
+
+    // `count` workers with empty arenas and counters, keeping the memory of
+    // earlier builds (bins, record vectors, node chunks). `primitives`: the
+    // build's size, which sets the workers' chunk size for subtree blocks:
+    // about a quarter of a worker's share of the nodes (one node per
+    // primitive is typical), between 1 and 16 MiB, so that chunks waste
+    // little on small scenes and are big enough for huge pages on big ones.
+    void reset(uint32_t count, uint32_t primitives) {
+        w.resize(count);
+        const size_t share = size_t(primitives) / (4 * size_t(std::max(1u, count)));
+        const size_t chunk = std::clamp<size_t>(share, size_t(1) << 15, size_t(1) << 19);
+        for (uint32_t i = 0; i < count; ++i) {
+            w[i].id = i;
+            w[i].skip = SkipCounts{};
+            w[i].out.reset();
+            w[i].out.chunk_nodes = chunk;
+        }
+    }
+    Worker& operator[](size_t i) { return w[i]; }
+    size_t size() const { return w.size(); }
+};
+
+}  // namespace canopy
