@@ -139,7 +139,11 @@ private:
         st_.trace = nullptr;
     }
 
-    BuildState st_;
+    BuildState st_ = [] {
+        BuildState st;
+        st.keep_memory = true;
+        return st;
+    }();
 };
 
 }  // namespace canopy

@@ -37,6 +37,10 @@ struct RawArray {
         advise_huge_pages(data.get(), n * sizeof(T));
     }
     T* get() const { return data.get(); }
+    void release() {
+        data.reset();
+        capacity = 0;
+    }
 };
 
 struct BuildState {
@@ -50,12 +54,21 @@ struct BuildState {
     RawArray<PrimRef> refs;     // the records (buffer 0)
     RawArray<PrimRef> scratch;  // the partition's second buffer (buffer 1)
     Workers workers;            // the parallel drivers' per-thread scratch
+    bool keep_memory = false;   // a warm Builder's state: release nothing early
     Bvh bvh;
     NodeTask root;
     BuildStats stats;
     TraceLog* trace = nullptr;  // optional
 
     KernelContext context() { return {{refs.get(), scratch.get()}, bvh.permutation.data(), &options, trace}; }
+
+    // Frees both record buffers once the tree no longer needs them, unless
+    // the state is kept for further builds.
+    void release_records() {
+        if (keep_memory) return;
+        refs.release();
+        scratch.release();
+    }
 
     // Computes refs[first, last) from primitives first..last-1.
     PrepareSummary prepare_range(size_t first, size_t last) {
