@@ -594,24 +594,51 @@ inline bool goes_left(const PrimRef& r, const BinMapper& m, const Split& s) {
 // written to dst[begin, end): the split's left_count records going left
 // first, then the others, each side in its input order. Child bounds are
 // accumulated in the same pass.
+// Blocks of 64 records: the sides of a block are found first, as a bit mask,
+// without a branch; then the left-going records are copied and their bounds
+// grown in one loop over the mask's set bits, and the right-going ones in
+// another. A branch per record on its side, as this was written before,
+// mispredicts wherever neighbouring records go different ways: on
+// `dragon_vrip_res2` an estimated 15% of the build went to them (perf
+// samples piling up right after that branch), and
+// the mask made the sequential build 0.81x as long (bunny 0.77x, 1M random
+// triangles 0.71x, Sibenik 0.92x; the 1M sphere and stadium, whose
+// neighbours mostly go the same way, 1.02-1.03x).
+inline constexpr uint32_t kSideBlock = 64;
+
+// Bit k set: record r[k] goes left (n <= kSideBlock). No branch.
+template <class Test>
+uint64_t left_mask(const PrimRef* r, uint32_t n, const Test& side) {
+    uint64_t mask = 0;
+    for (uint32_t k = 0; k < n; ++k)
+        mask |= uint64_t(side.left(simd::centroid(simd::lo(r[k]), simd::hi(r[k])), simd::hi_area(r[k]))) << k;
+    return mask;
+}
+inline uint64_t block_bits(uint32_t n) { return n == 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1; }
+
 template <class Test>
 PartitionResult partition_with(const PrimRef* src, PrimRef* dst, uint32_t begin, uint32_t end,
                                uint32_t left_count, const Test& side) {
-    // The accumulators stay in registers; a side is chosen by a branch, which
-    // real meshes predict well (neighbouring primitives go the same way).
     simd::Box4 lb, rb, lc, rc;
     PrimRef* left = dst + begin;
     PrimRef* right = dst + begin + left_count;
-    for (uint32_t i = begin; i < end; ++i) {
-        const __m128 lo = simd::lo(src[i]), ha = simd::hi_area(src[i]);
-        const __m128 c = simd::centroid(lo, simd::hi(src[i]));
-        if (side.left(c, ha)) {
-            *left++ = src[i];
-            lb.grow(lo, ha);
+    for (uint32_t b0 = begin; b0 < end; b0 += kSideBlock) {
+        const uint32_t n = std::min(kSideBlock, end - b0);
+        const PrimRef* r = src + b0;
+        const uint64_t lmask = left_mask(r, n, side);
+        const uint64_t all = block_bits(n);
+        for (uint64_t m = lmask; m; m &= m - 1) {
+            const PrimRef& x = r[std::countr_zero(m)];
+            *left++ = x;
+            const __m128 lo = simd::lo(x), c = simd::centroid(lo, simd::hi(x));
+            lb.grow(lo, simd::hi_area(x));
             lc.grow(c, c);
-        } else {
-            *right++ = src[i];
-            rb.grow(lo, ha);
+        }
+        for (uint64_t m = ~lmask & all; m; m &= m - 1) {
+            const PrimRef& x = r[std::countr_zero(m)];
+            *right++ = x;
+            const __m128 lo = simd::lo(x), c = simd::centroid(lo, simd::hi(x));
+            rb.grow(lo, simd::hi_area(x));
             rc.grow(c, c);
         }
     }
@@ -669,12 +696,13 @@ inline PartitionResult partition_count(const PrimRef* refs, uint32_t b, uint32_t
 inline void partition_scatter(const PrimRef* refs, uint32_t b, uint32_t e, const BinMapper& m,
                               const Split& s, PrimRef* left_out, PrimRef* right_out) {
     with_side_test(m, s, [&](const auto& side) {
-        for (uint32_t i = b; i < e; ++i) {
-            const PrimRef& r = refs[i];
-            if (side.left(simd::centroid(simd::lo(r), simd::hi(r)), simd::hi_area(r)))  // = goes_left(r, m, s)
-                *left_out++ = r;
-            else
-                *right_out++ = r;
+        // As partition_with(): sides by mask, no branch per record.
+        for (uint32_t b0 = b; b0 < e; b0 += kSideBlock) {
+            const uint32_t n = std::min(kSideBlock, e - b0);
+            const PrimRef* r = refs + b0;
+            const uint64_t lmask = left_mask(r, n, side);
+            for (uint64_t k = lmask; k; k &= k - 1) *left_out++ = r[std::countr_zero(k)];
+            for (uint64_t k = ~lmask & block_bits(n); k; k &= k - 1) *right_out++ = r[std::countr_zero(k)];
         }
     });
 }
