@@ -593,6 +593,36 @@ TEST(KernelPartition, EvaluatedSplitPartitionsAsCounted) {
     }
 }
 
+namespace {
+
+// The blocked partition a team-parallel node runs (count per range, prefix
+// sums, scatter) over consecutive `ranges`, into `out`. Returns the merged
+// counts, mid = the left total.
+PartitionResult blocked_partition(const std::vector<PrimRef>& input,
+                                  const std::vector<std::pair<uint32_t, uint32_t>>& ranges, const BinMapper& m,
+                                  const Split& s, std::vector<PrimRef>& out) {
+    std::vector<PartitionResult> counts;
+    PartitionResult merged;
+    uint32_t total_left = 0;
+    for (const auto& [b, e] : ranges) {
+        counts.push_back(canopy::partition_count(input.data(), b, e, m, s));
+        merged.merge(counts.back());
+        total_left += counts.back().mid;
+    }
+    uint32_t left_at = ranges.front().first, right_at = ranges.front().first + total_left;
+    for (size_t k = 0; k < ranges.size(); ++k) {
+        const auto [b, e] = ranges[k];
+        canopy::partition_scatter(input.data(), b, e, m, s, out.data() + left_at, out.data() + right_at);
+        left_at += counts[k].mid;
+        right_at += (e - b) - counts[k].mid;
+    }
+    EXPECT_EQ(right_at, ranges.back().second);
+    merged.mid = total_left;
+    return merged;
+}
+
+}  // namespace
+
 TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
     struct Case {
         uint32_t n, begin, end;
@@ -626,26 +656,10 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
                     ranges.push_back({b, e});
                     b = e;
                 }
-                std::vector<PartitionResult> counts;
-                PartitionResult merged;
-                uint32_t total_left = 0;
-                for (const auto& [b, e] : ranges) {
-                    counts.push_back(canopy::partition_count(input.data(), b, e, m, s));
-                    merged.merge(counts.back());
-                    total_left += counts.back().mid;
-                }
-                EXPECT_EQ(total_left, s.left_count);
                 std::vector<PrimRef> out = sentinels(c.n);
-                uint32_t left_at = c.begin, right_at = c.begin + total_left;
-                for (size_t k = 0; k < ranges.size(); ++k) {
-                    const auto [b, e] = ranges[k];
-                    canopy::partition_scatter(input.data(), b, e, m, s, out.data() + left_at,
-                                              out.data() + right_at);
-                    left_at += counts[k].mid;
-                    right_at += (e - b) - counts[k].mid;
-                }
-                EXPECT_EQ(right_at, c.end);
-                EXPECT_EQ(c.begin + total_left, p.mid);
+                const PartitionResult merged = blocked_partition(input, ranges, m, s, out);
+                EXPECT_EQ(merged.mid, s.left_count);
+                EXPECT_EQ(c.begin + merged.mid, p.mid);
                 ASSERT_TRUE(same_records(out, ref)) << "n " << c.n << " axis " << axis << " index " << idx;
                 EXPECT_EQ(merged.left_bounds, p.left_bounds);
                 EXPECT_EQ(merged.left_cbounds, p.left_cbounds);
@@ -1129,18 +1143,12 @@ TEST(KernelSizeSplit, PartitionIsTheStablePartitionByArea) {
         EXPECT_EQ(p.right_max_area, max_area(dst, p.mid, end));
 
         // Blocked, as the parallel node does it: the same records and bounds.
+        std::vector<std::pair<uint32_t, uint32_t>> ranges;
+        for (uint32_t b0 = begin; b0 < end; b0 += canopy::kPartitionBlock)
+            ranges.push_back({b0, std::min(end, b0 + canopy::kPartitionBlock)});
         std::vector<PrimRef> out = sentinels(n);
-        PartitionResult merged;
-        uint32_t left_at = begin, right_at = begin + s.left_count;
-        for (uint32_t b0 = begin; b0 < end; b0 += canopy::kPartitionBlock) {
-            const uint32_t e0 = std::min(end, b0 + canopy::kPartitionBlock);
-            const PartitionResult c = canopy::partition_count(input.data(), b0, e0, m, s);
-            merged.merge(c);
-            canopy::partition_scatter(input.data(), b0, e0, m, s, out.data() + left_at, out.data() + right_at);
-            left_at += c.mid;
-            right_at += (e0 - b0) - c.mid;
-        }
-        EXPECT_EQ(left_at, begin + s.left_count);
+        const PartitionResult merged = blocked_partition(input, ranges, m, s, out);
+        EXPECT_EQ(merged.mid, s.left_count);
         EXPECT_TRUE(same_records(out, dst));
         EXPECT_EQ(merged.left_bounds, p.left_bounds);
         EXPECT_EQ(merged.right_cbounds, p.right_cbounds);
