@@ -616,39 +616,33 @@ uint64_t left_mask(const PrimRef* r, uint32_t n, const Test& side) {
 }
 inline uint64_t block_bits(uint32_t n) { return n == 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1; }
 
+// Copies the records of block r whose bits are set to `out`, growing side
+// `Side` of `acc` (a constant side, so the accumulators stay in registers).
+template <int Side>
+inline void copy_side(const PrimRef* r, uint64_t bits, PrimRef*& out, ChildBounds4& acc) {
+    for (; bits; bits &= bits - 1) {
+        const PrimRef& x = r[std::countr_zero(bits)];
+        *out++ = x;
+        const __m128 lo = simd::lo(x);
+        acc.add(Side, lo, simd::hi_area(x), simd::centroid(lo, simd::hi(x)));
+    }
+}
+
 template <class Test>
 PartitionResult partition_with(const PrimRef* src, PrimRef* dst, uint32_t begin, uint32_t end,
                                uint32_t left_count, const Test& side) {
-    simd::Box4 lb, rb, lc, rc;
+    ChildBounds4 acc;
     PrimRef* left = dst + begin;
     PrimRef* right = dst + begin + left_count;
     for (uint32_t b0 = begin; b0 < end; b0 += kSideBlock) {
         const uint32_t n = std::min(kSideBlock, end - b0);
         const PrimRef* r = src + b0;
         const uint64_t lmask = left_mask(r, n, side);
-        const uint64_t all = block_bits(n);
-        for (uint64_t m = lmask; m; m &= m - 1) {
-            const PrimRef& x = r[std::countr_zero(m)];
-            *left++ = x;
-            const __m128 lo = simd::lo(x), c = simd::centroid(lo, simd::hi(x));
-            lb.grow(lo, simd::hi_area(x));
-            lc.grow(c, c);
-        }
-        for (uint64_t m = ~lmask & all; m; m &= m - 1) {
-            const PrimRef& x = r[std::countr_zero(m)];
-            *right++ = x;
-            const __m128 lo = simd::lo(x), c = simd::centroid(lo, simd::hi(x));
-            rb.grow(lo, simd::hi_area(x));
-            rc.grow(c, c);
-        }
+        copy_side<0>(r, lmask, left, acc);
+        copy_side<1>(r, ~lmask & block_bits(n), right, acc);
     }
     PartitionResult res;
-    res.left_bounds = lb.box();
-    res.right_bounds = rb.box();
-    res.left_cbounds = lc.box();
-    res.right_cbounds = rc.box();
-    res.left_max_area = max_area_of(lb);
-    res.right_max_area = max_area_of(rb);
+    acc.into(res);
     res.mid = begin + left_count;
     return res;
 }
