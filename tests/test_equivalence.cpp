@@ -102,7 +102,9 @@ TEST(Equivalence, FullMatrixOnGeneratedScenes) {
             const ValidationReport rep = validate(ref, view, seq_opt);
             ASSERT_TRUE(rep.ok()) << scene.name << " bins " << bins << ": " << rep.summary();
             // The room exercises the size split, also at the team-parallel root.
-            if (scene.name == "room") EXPECT_GT(seq_stats.skipped.size_splits, 0u) << "bins " << bins;
+            if (scene.name == "room") {
+                EXPECT_GT(seq_stats.skipped.size_splits, 0u) << "bins " << bins;
+            }
             for (const SchedulerEntry& s : tested_schedulers()) {
                 for (uint32_t threads : {1u, 2u, 3u, 4u, 8u}) {
                     const BuildOptions opt = small_tuning(bins, threads);

@@ -333,7 +333,10 @@ TEST(KernelBin, EightPrimitivesAlongX) {
 }
 
 TEST(KernelBin, CountsAndBoxesMatchTheMapping) {
-    const uint32_t n = 500;
+    // The whole range takes bin()'s two-set path, [0, 123) the one-set path
+    // and [123, n) the two-set path with an odd count.
+    constexpr uint32_t n = 500;
+    static_assert(n - 123 >= canopy::kTwoBinSetsMin && 123 < canopy::kTwoBinSetsMin && (n - 123) % 2 == 1);
     const std::vector<PrimRef> refs = random_refs(n, 5);
     const Bounds b = bounds_of(refs.data(), 0, n);
     for (uint32_t nb : {2u, 7u, 16u, 256u}) {
@@ -1067,7 +1070,9 @@ TEST(KernelSizeSplit, RoomIsSplitBySize) {
     uint32_t last_small = 0;
     for (uint32_t i = 0; i < 40; ++i) {
         EXPECT_LT(buf.b[i].id, 100u);
-        if (i) EXPECT_GT(buf.b[i].id, last_small);
+        if (i) {
+            EXPECT_GT(buf.b[i].id, last_small);
+        }
         last_small = buf.b[i].id;
     }
     for (uint32_t k = 0; k < 4; ++k) EXPECT_EQ(buf.b[40 + k].id, 100u + k);
