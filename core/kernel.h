@@ -299,15 +299,17 @@ struct BinSet : BinArrays {
 // cost more than it saves.
 inline constexpr uint32_t kTwoBinSetsMin = 256;
 
-inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
+namespace detail {
+
+// bin() over blocks of records; Two: every other record into out.odd.
+template <bool Two>
+inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
     constexpr uint32_t kBlock = 64;
     alignas(16) int32_t k[kBlock][4];
     int axes[3], na = 0;
     for (int a = 0; a < 3; ++a)
         if (m.valid[a]) axes[na++] = a;
-    const bool two = na == 3 && end - begin >= kTwoBinSetsMin;
-    if (two) out.odd.clear(m.bins);
-    const auto update = [&](BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
+    const auto update = [](BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
         const __m128 lo = simd::lo(x), hi = simd::hi(x);
         set.box4[0][ki[0]].grow(lo, hi);
         set.box4[1][ki[1]].grow(lo, hi);
@@ -322,7 +324,7 @@ inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapp
         for (uint32_t i = 0; i < n; ++i)
             _mm_store_si128(reinterpret_cast<__m128i*>(k[i]),
                             m.indices4(simd::centroid(simd::lo(r[i]), simd::hi(r[i]))));
-        if (two) {
+        if constexpr (Two) {
             uint32_t i = 0;
             for (; i + 1 < n; i += 2) {
                 update(out, r[i], k[i]);
@@ -344,7 +346,22 @@ inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapp
             }
         }
     }
-    if (two) out.merge(out.odd, m.bins);
+}
+
+// Out of line, so that bin() stays small enough to inline into run_node()
+// for the many small nodes.
+[[gnu::noinline]] inline void bin_two_sets(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m,
+                                           BinSet& out) {
+    out.odd.clear(m.bins);
+    bin_blocks<true>(refs, begin, end, m, out);
+    out.merge(out.odd, m.bins);
+}
+
+}  // namespace detail
+
+inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
+    if (m.valid_count() == 3 && end - begin >= kTwoBinSetsMin) return detail::bin_two_sets(refs, begin, end, m, out);
+    detail::bin_blocks<false>(refs, begin, end, m, out);
 }
 
 // The best split found by evaluate() (or by the size split, see below).
