@@ -307,8 +307,8 @@ TEST(KernelBin, EightPrimitivesAlongX) {
     canopy::bin(refs.data(), 0, 8, m, *bins);
     uint32_t total = 0;
     for (uint32_t k = 0; k < 4; ++k) {
-        EXPECT_EQ(bins->count[0][k], 2u) << k;
-        total += bins->count[0][k];
+        EXPECT_EQ(bins->count(0, k), 2u) << k;
+        total += bins->count(0, k);
         const Box expected{Vec3(2.0f * k, 0, 0), Vec3(2.0f * k + 1.5f, 1, 1)};
         EXPECT_EQ(bin_box(*bins, 0, k), expected) << k;
     }
@@ -316,17 +316,17 @@ TEST(KernelBin, EightPrimitivesAlongX) {
     // Invalid axes are not touched.
     for (int a = 1; a < 3; ++a)
         for (uint32_t k = 0; k < 4; ++k) {
-            EXPECT_EQ(bins->count[a][k], 0u);
+            EXPECT_EQ(bins->count(a, k), 0u);
             EXPECT_TRUE(bin_box(*bins, a, k).is_empty());
         }
 
     // A sub-range: primitives 3..6 only.
     bins->clear(4);
     canopy::bin(refs.data(), 3, 7, m, *bins);
-    EXPECT_EQ(bins->count[0][0], 0u);
-    EXPECT_EQ(bins->count[0][1], 1u);
-    EXPECT_EQ(bins->count[0][2], 2u);
-    EXPECT_EQ(bins->count[0][3], 1u);
+    EXPECT_EQ(bins->count(0, 0), 0u);
+    EXPECT_EQ(bins->count(0, 1), 1u);
+    EXPECT_EQ(bins->count(0, 2), 2u);
+    EXPECT_EQ(bins->count(0, 3), 1u);
     EXPECT_TRUE(bin_box(*bins, 0, 0).is_empty());
     EXPECT_EQ(bin_box(*bins, 0, 1), (Box{Vec3(3, 0, 0), Vec3(3.5f, 1, 1)}));
     EXPECT_EQ(bin_box(*bins, 0, 3), (Box{Vec3(6, 0, 0), Vec3(6.5f, 1, 1)}));
@@ -354,9 +354,9 @@ TEST(KernelBin, CountsAndBoxesMatchTheMapping) {
                         expected.extend(r.hi);
                         ++count;
                     }
-                EXPECT_EQ(bins->count[a][k], count) << "axis " << a << " bin " << k;
+                EXPECT_EQ(bins->count(a, k), count) << "axis " << a << " bin " << k;
                 EXPECT_EQ(bin_box(*bins, a, k), expected) << "axis " << a << " bin " << k;
-                total += bins->count[a][k];
+                total += bins->count(a, k);
             }
             EXPECT_EQ(total, n) << "axis " << a;
         }
@@ -369,7 +369,7 @@ TEST(KernelBin, CountsAndBoxesMatchTheMapping) {
         hi->merge(*lo, nb);
         for (int a = 0; a < 3; ++a)
             for (uint32_t k = 0; k < nb; ++k) {
-                EXPECT_EQ(hi->count[a][k], bins->count[a][k]);
+                EXPECT_EQ(hi->count(a, k), bins->count(a, k));
                 EXPECT_EQ(bin_box(*hi, a, k), bin_box(*bins, a, k));
             }
     }
@@ -587,7 +587,7 @@ TEST(KernelPartition, EvaluatedSplitPartitionsAsCounted) {
         ASSERT_TRUE(s.found());
         EXPECT_EQ(s.left_count, make_split(input, 0, 1000, m, s.axis, s.index).left_count);
         uint32_t from_bins = 0;
-        for (uint32_t k = 0; k < s.index; ++k) from_bins += bins->count[s.axis][k];
+        for (uint32_t k = 0; k < s.index; ++k) from_bins += bins->count(s.axis, k);
         EXPECT_EQ(s.left_count, from_bins);
         std::vector<PrimRef> dst(1000);
         const PartitionResult p = canopy::partition(input.data(), dst.data(), 0, 1000, m, s);
