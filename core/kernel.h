@@ -672,14 +672,16 @@ inline void copy_side(const PrimRef* r, uint64_t bits, PrimRef*& out, ChildBound
     }
 }
 
+// The partition loop: refs[b, e)'s left-going records in order from
+// `left` on, the right-going ones from `right` on; returns the child bounds
+// (mid: how many went left).
 template <class Test>
-PartitionResult partition_with(const PrimRef* src, PrimRef* dst, uint32_t begin, uint32_t end,
-                               uint32_t left_count, const Test& side) {
+PartitionResult partition_with(const PrimRef* src, uint32_t b, uint32_t e, PrimRef* left, PrimRef* right,
+                               const Test& side) {
     ChildBounds4 acc;
-    PrimRef* left = dst + begin;
-    PrimRef* right = dst + begin + left_count;
-    for (uint32_t b0 = begin; b0 < end; b0 += kSideBlock) {
-        const uint32_t n = std::min(kSideBlock, end - b0);
+    const PrimRef* const left_start = left;
+    for (uint32_t b0 = b; b0 < e; b0 += kSideBlock) {
+        const uint32_t n = std::min(kSideBlock, e - b0);
         const PrimRef* r = src + b0;
         const uint64_t lmask = left_mask(r, n, side);
         copy_side<0>(r, lmask, left, acc);
@@ -687,62 +689,51 @@ PartitionResult partition_with(const PrimRef* src, PrimRef* dst, uint32_t begin,
     }
     PartitionResult res;
     acc.into(res);
-    res.mid = begin + left_count;
+    res.mid = static_cast<uint32_t>(left - left_start);
     return res;
 }
 
 // Size splits are rare; their loop stays out of line, so that the plane
 // partition inlines into run_node as before.
-[[gnu::noinline]] inline PartitionResult partition_by_size(const PrimRef* src, PrimRef* dst, uint32_t begin,
-                                                           uint32_t end, const Split& s) {
-    return partition_with(src, dst, begin, end, s.left_count, SizeTest(s));
+[[gnu::noinline]] inline PartitionResult partition_by_size(const PrimRef* src, uint32_t b, uint32_t e,
+                                                           PrimRef* left, PrimRef* right, const Split& s) {
+    return partition_with(src, b, e, left, right, SizeTest(s));
+}
+
+// Step 3 for a piece of a node: refs[b, e) partitioned around the split,
+// left-going records written in order from left_out on and right-going ones
+// from right_out on (any buffer); returns their bounds, with mid = the number
+// that went left. partition() is this with the outputs at the node's range
+// in the other buffer; a team-parallel node runs it on consecutive blocks
+// with outputs placed by prefix sums of the blocks' left counts (see
+// left_count()), which reproduces partition() bit for bit: the stable
+// partition is unique.
+inline PartitionResult partition_into(const PrimRef* refs, uint32_t b, uint32_t e, const BinMapper& m,
+                                      const Split& s, PrimRef* left_out, PrimRef* right_out) {
+    if (s.by_size()) return partition_by_size(refs, b, e, left_out, right_out, s);
+    return partition_with(refs, b, e, left_out, right_out, SideTest(m, s));
 }
 
 inline PartitionResult partition(const PrimRef* src, PrimRef* dst, uint32_t begin, uint32_t end,
                                  const BinMapper& m, const Split& s) {
-    if (s.by_size()) return partition_by_size(src, dst, begin, end, s);
-    return partition_with(src, dst, begin, end, s.left_count, SideTest(m, s));
+    PartitionResult res = partition_into(src, begin, end, m, s, dst + begin, dst + begin + s.left_count);
+    res.mid = begin + s.left_count;
+    return res;
 }
 
-// Blocked pieces of the same partition, for parallel schedulers. Any block
-// size gives the same result (the stable partition is unique).
-inline constexpr uint32_t kPartitionBlock = 16384;
-
-// Counts the left-going primitives of refs[b, e) and accumulates the child
-// bounds (res.mid holds the left count).
-inline PartitionResult partition_count(const PrimRef* refs, uint32_t b, uint32_t e,
-                                       const BinMapper& m, const Split& s) {
-    return with_side_test(m, s, [&](const auto& side) {
-        ChildBounds4 acc;
-        uint32_t nl = 0;
-        for (uint32_t i = b; i < e; ++i) {
-            const __m128 lo = simd::lo(refs[i]), ha = simd::hi_area(refs[i]);
-            const __m128 c = simd::centroid(lo, simd::hi(refs[i]));
-            const bool left = side.left(c, ha);
-            nl += left;
-            acc.add(!left, lo, ha, c);
-        }
-        PartitionResult res;
-        acc.into(res);
-        res.mid = nl;
-        return res;
-    });
+// How many records of a binned range go left: for a plane split, the counts
+// of the bins below the split index on its axis (the bins and the partition
+// share BinMapper's mapping, so this is exact); for a size split, the counts
+// of the size classes below the cut.
+inline uint32_t left_count(const BinArrays& bins, const Split& s) {
+    uint32_t n = 0;
+    for (uint32_t k = 0; k < s.index; ++k) n += bins.count(s.axis, k);
+    return n;
 }
-
-// Copies the records of refs[b, e) in order to another buffer: left-going
-// ones from left_out on, right-going ones from right_out on.
-inline void partition_scatter(const PrimRef* refs, uint32_t b, uint32_t e, const BinMapper& m,
-                              const Split& s, PrimRef* left_out, PrimRef* right_out) {
-    with_side_test(m, s, [&](const auto& side) {
-        // As partition_with(): sides by mask, no branch per record.
-        for (uint32_t b0 = b; b0 < e; b0 += kSideBlock) {
-            const uint32_t n = std::min(kSideBlock, e - b0);
-            const PrimRef* r = refs + b0;
-            const uint64_t lmask = left_mask(r, n, side);
-            for (uint64_t k = lmask; k; k &= k - 1) *left_out++ = r[std::countr_zero(k)];
-            for (uint64_t k = ~lmask & block_bits(n); k; k &= k - 1) *right_out++ = r[std::countr_zero(k)];
-        }
-    });
+inline uint32_t left_count(const SizeBins& sizes, const SizeCuts& cuts, const Split& s) {
+    // Area < size_cut goes left: classes 1 and 2 for the cut at half, class 2
+    // for the cut at a quarter (when the two cuts are equal, class 1 is empty).
+    return (s.size_cut == cuts.half ? sizes.count[1] : 0) + sizes.count[2];
 }
 
 // Bounds of refs[b, e) as one side of a middle split.

@@ -7,9 +7,12 @@
 // run_parallel_node). The result is bit-identical to run_node():
 //  - bins merge with min/max and integer sums only (exact, order-free), so
 //    how the range is cut into chunks does not matter;
-//  - the partition is the stable one, which is unique: blocks count their
-//    left-going records, a prefix sum gives every block its output offsets,
-//    and each block copies its records to the other buffer.
+//  - the partition is the stable one, which is unique: the chunks that were
+//    binned know from their own bins how many of their records go left, a
+//    prefix sum over them gives every chunk its output offsets, and each
+//    chunk copies its records to the other buffer, accumulating its share of
+//    the child bounds on the way (merged exactly too). Two passes over the
+//    records, as in run_node(): bin, then partition.
 #pragma once
 
 #include "kernel.h"
@@ -24,7 +27,7 @@ namespace canopy {
 
 class ParallelNode {
 public:
-    static constexpr uint32_t kBinChunk = 32768;  // records per binning chunk
+    static constexpr uint32_t kChunk = 32768;  // records per chunk (bin and partition)
 
     ParallelNode(const KernelContext& ctx, const NodeTask& t) : ctx_(ctx), t_(t) {}
     const NodeTask& task() const { return t_; }
@@ -62,19 +65,23 @@ private:
             }
         }
         ++skip.parallel_nodes;
-        const uint32_t n = t_.size();
-        chunks_ = plan_ == Plan::Sah ? (n + kBinChunk - 1) / kBinChunk : 0;
-        if (chunks_ > chunk_bins_.size()) chunk_bins_.resize(chunks_);
-        chunk_sizes_.assign(sizes_ ? chunks_ : 0, SizeBins{});
-        for (uint32_t i = 0; i < chunks_; ++i)
+        chunks_ = (t_.size() + kChunk - 1) / kChunk;
+        const uint32_t binned = plan_ == Plan::Sah ? chunks_ : 0;
+        if (binned > chunk_bins_.size()) chunk_bins_.resize(binned);
+        chunk_sizes_.assign(sizes_ ? binned : 0, SizeBins{});
+        for (uint32_t i = 0; i < binned; ++i)
             if (!chunk_bins_[i]) chunk_bins_[i] = std::make_unique<BinSet>();
-        blocks_ = (n + kPartitionBlock - 1) / kPartitionBlock;
-        block_.assign(blocks_, PartitionResult{});
+        chunk_.assign(chunks_, PartitionResult{});
         return true;
     }
 
     bool decide_impl(SkipCounts& skip) {
         if (plan_ != Plan::Sah) return true;
+        // Each chunk's left count comes from its own bins, so they are read
+        // before the merge (which accumulates into chunk 0's bins); chunk 0's
+        // is what the others leave of the total.
+        std::vector<uint32_t>& left = left_at_;
+        left.assign(chunks_, 0);
         for (uint32_t i = 1; i < chunks_; ++i) chunk_bins_[0]->merge(*chunk_bins_[i], m_.bins);
         split_ = evaluate(*chunk_bins_[0], m_, t_.bounds, *ctx_.options);
         if (sizes_) {
@@ -83,78 +90,78 @@ private:
             skip.size_splits += split_.by_size();
         }
         if (sah_says_leaf(split_, t_.size(), *ctx_.options)) return false;
-        if (!split_.found()) plan_ = Plan::Middle;
+        if (!split_.found()) {
+            plan_ = Plan::Middle;
+            return true;
+        }
+        // Output offsets: chunk i's left-going records from left_at_[i] on,
+        // its right-going ones from right_at_[i] on (relative to t_.begin).
+        uint32_t others = 0;
+        for (uint32_t i = 1; i < chunks_; ++i) {
+            left[i] = split_.by_size() ? left_count(chunk_sizes_[i], cuts_, split_) : left_count(*chunk_bins_[i], split_);
+            others += left[i];
+        }
+        left[0] = split_.left_count - others;
+        right_at_.resize(chunks_);
+        uint32_t at_left = 0, at_right = split_.left_count;
+        for (uint32_t i = 0; i < chunks_; ++i) {
+            const auto [lo, hi] = chunk_range(i);
+            const uint32_t nl = left[i];
+            left[i] = at_left;
+            right_at_[i] = at_right;
+            at_left += nl;
+            at_right += (hi - lo) - nl;
+        }
         return true;
     }
 
 public:
     // Parallel over [0, bin_chunks()): bins one chunk.
-    uint32_t bin_chunks() const { return chunks_; }
+    uint32_t bin_chunks() const { return plan_ == Plan::Sah ? chunks_ : 0; }
     void bin_chunk(uint32_t i) {
         BinSet& b = *chunk_bins_[i];
         b.clear(m_.bins);
-        const uint32_t lo = t_.begin + i * kBinChunk, hi = std::min(t_.end, lo + kBinChunk);
+        const auto [lo, hi] = chunk_range(i);
         bin(ctx_.src(t_), lo, hi, m_, b);
         if (sizes_) bin_sizes(ctx_.src(t_), lo, hi, cuts_, chunk_sizes_[i]);
     }
 
-    // Parallel over [0, blocks()): counts one block (or, for a middle split,
-    // accumulates its share of each half's bounds).
-    uint32_t blocks() const { return blocks_; }
-    void count_block(uint32_t i) {
-        const auto [lo, hi] = block_range(i);
-        if (plan_ == Plan::Sah) {
-            block_[i] = partition_count(ctx_.src(t_), lo, hi, m_, split_);
-            return;
-        }
+    // Whether the split moves records (a SAH split) or is a middle split.
+    bool moves() const { return plan_ == Plan::Sah; }
+    uint32_t chunks() const { return chunks_; }
+
+    // Parallel over [0, chunks()), SAH splits: copies a chunk's records to
+    // their places in the other buffer, with its share of the child bounds.
+    void scatter_chunk(uint32_t i) {
+        const auto [lo, hi] = chunk_range(i);
+        PrimRef* out = ctx_.dst(t_) + t_.begin;
+        chunk_[i] = partition_into(ctx_.src(t_), lo, hi, m_, split_, out + left_at_[i], out + right_at_[i]);
+    }
+
+    // Parallel over [0, chunks()), middle splits: a chunk's share of each
+    // half's bounds (the records stay where they are).
+    void middle_chunk(uint32_t i) {
+        const auto [lo, hi] = chunk_range(i);
         const uint32_t mid = t_.begin + t_.size() / 2;
         ChildBounds4 acc;
         grow_range(ctx_.src(t_), lo, std::max(lo, std::min(hi, mid)), acc, 0);
         grow_range(ctx_.src(t_), std::min(hi, std::max(lo, mid)), hi, acc, 1);
-        block_[i] = PartitionResult{};
-        acc.into(block_[i]);
+        chunk_[i] = PartitionResult{};
+        acc.into(chunk_[i]);
     }
 
-    // Serial: prefix sums over the block counts, merged child bounds.
-    void prefix() {
-        result_ = PartitionResult{};
-        if (plan_ == Plan::Middle) {
-            for (const PartitionResult& b : block_) result_.merge(b);
-            result_.mid = t_.begin + t_.size() / 2;
-            return;
-        }
-        left_at_.resize(blocks_);
-        right_at_.resize(blocks_);
-        uint32_t left = 0;
-        for (uint32_t i = 0; i < blocks_; ++i) {
-            left_at_[i] = left;
-            left += block_[i].mid;
-            result_.merge(block_[i]);
-        }
-        uint32_t right = left;
-        for (uint32_t i = 0; i < blocks_; ++i) {
-            right_at_[i] = right;
-            right += (block_range(i).second - block_range(i).first) - block_[i].mid;
-        }
-        result_.mid = t_.begin + left;
+    // Serial: merges the chunks' bounds and writes the children.
+    void finish(NodeTask children[2]) {
+        PartitionResult r;
+        for (const PartitionResult& c : chunk_) r.merge(c);
+        r.mid = t_.begin + (moves() ? split_.left_count : t_.size() / 2);
+        emit(t_, r, moves(), children);
     }
-
-    // Parallel over [0, blocks()), SAH splits only: copies a block's records
-    // to their places in the other buffer.
-    bool moves() const { return plan_ == Plan::Sah; }
-    void scatter_block(uint32_t i) {
-        const auto [lo, hi] = block_range(i);
-        PrimRef* out = ctx_.dst(t_) + t_.begin;
-        partition_scatter(ctx_.src(t_), lo, hi, m_, split_, out + left_at_[i], out + right_at_[i]);
-    }
-
-    // Serial: the children.
-    void finish(NodeTask children[2]) const { emit(t_, result_, moves(), children); }
 
 private:
-    std::pair<uint32_t, uint32_t> block_range(uint32_t i) const {
-        const uint32_t lo = t_.begin + i * kPartitionBlock;
-        return {lo, std::min(t_.end, lo + kPartitionBlock)};
+    std::pair<uint32_t, uint32_t> chunk_range(uint32_t i) const {
+        const uint32_t lo = t_.begin + i * kChunk;
+        return {lo, std::min(t_.end, lo + kChunk)};
     }
 
     KernelContext ctx_;
@@ -165,12 +172,11 @@ private:
     SizeCuts cuts_;
     bool sizes_ = false;  // the size split is offered (SizeCuts::applies)
     Split split_;
-    uint32_t chunks_ = 0, blocks_ = 0;
+    uint32_t chunks_ = 0;
     std::vector<std::unique_ptr<BinSet>> chunk_bins_;
     std::vector<SizeBins> chunk_sizes_;
-    std::vector<PartitionResult> block_;
+    std::vector<PartitionResult> chunk_;  // each chunk's share of the child bounds
     std::vector<uint32_t> left_at_, right_at_;
-    PartitionResult result_;
 };
 
 // Runs a big node with a scheduler's means: for_each(k, fn) calls fn(i) for
@@ -181,7 +187,8 @@ private:
 // Returns whether the node split (children written to `children`, which
 // in an OpenMP team must be shared). With a trace log (given by one caller
 // only), each phase becomes a span on that caller's track: the parallel
-// ones (bin, count, scatter) last until the whole team is done.
+// ones (bin, scatter, or count for a middle split) last until the whole
+// team is done.
 template <class ForEach, class Serial>
 bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip, ForEach&& for_each,
                        Serial&& serial, TraceLog* log = nullptr, uint32_t worker = 0) {
@@ -194,10 +201,10 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
     phase(TraceSpan::Bin, [&] { for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); }); });
     phase(TraceSpan::Evaluate, [&] { serial([&] { pn.decide(skip); }); });
     if (!pn.splits()) return false;
-    phase(TraceSpan::Count, [&] { for_each(pn.blocks(), [&](uint32_t i) { pn.count_block(i); }); });
-    phase(TraceSpan::Prefix, [&] { serial([&] { pn.prefix(); }); });
     if (pn.moves())
-        phase(TraceSpan::Scatter, [&] { for_each(pn.blocks(), [&](uint32_t i) { pn.scatter_block(i); }); });
+        phase(TraceSpan::Scatter, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.scatter_chunk(i); }); });
+    else
+        phase(TraceSpan::Count, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.middle_chunk(i); }); });
     phase(TraceSpan::Finish, [&] { serial([&] { pn.finish(children); }); });
     return true;
 }

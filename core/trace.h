@@ -4,10 +4,10 @@
 // A span is a node task as the scheduler ran it: a node processed on its own
 // ("task"), a whole subtree run inline below the task cutoff ("inline"), or
 // a big node processed by the whole team ("parallel", with a span for each
-// of its phases: start, bin, evaluate, count, prefix, scatter, finish).
-// Tracing is off unless
-// a TraceLog is passed to the build; when off, the only cost is one pointer
-// test per scheduled task, outside every per-primitive loop.
+// of its phases: start, bin, evaluate, scatter or, for a middle split,
+// count, and finish). Tracing is off unless a TraceLog is passed to the
+// build; when off, the only cost is one pointer test per scheduled task,
+// outside every per-primitive loop.
 #pragma once
 
 #include "layout.h"
@@ -23,9 +23,9 @@ namespace canopy {
 struct TraceSpan {
     // How the node ran; the kinds from Start on are the phases of a
     // team-parallel node (see run_parallel_node).
-    enum Kind : uint8_t { Task, Inline, Parallel, Start, Bin, Evaluate, Count, Prefix, Scatter, Finish };
+    enum Kind : uint8_t { Task, Inline, Parallel, Start, Bin, Evaluate, Count, Scatter, Finish };
     static constexpr const char* kKindNames[] = {"task",  "inline", "parallel", "start",  "bin",
-                                                 "evaluate", "count", "prefix", "scatter", "finish"};
+                                                 "evaluate", "count", "scatter", "finish"};
     uint64_t start_ns, end_ns;  // since the log's start
     uint32_t worker;
     uint32_t node;              // canonical node index (filled in after placement)

@@ -598,26 +598,40 @@ TEST(KernelPartition, EvaluatedSplitPartitionsAsCounted) {
 
 namespace {
 
-// The blocked partition a team-parallel node runs (count per range, prefix
-// sums, scatter) over consecutive `ranges`, into `out`. Returns the merged
-// counts, mid = the left total.
+// A block size of the order the team-parallel node uses.
+constexpr uint32_t kBlock = 16384;
+
+// The blocked partition a team-parallel node runs over consecutive
+// `ranges`, into `out`: each range's left count read from its own bins (size
+// classes for a size split), prefix sums, partition_into() per range.
+// Returns the merged bounds, mid = the left total.
 PartitionResult blocked_partition(const std::vector<PrimRef>& input,
                                   const std::vector<std::pair<uint32_t, uint32_t>>& ranges, const BinMapper& m,
                                   const Split& s, std::vector<PrimRef>& out) {
-    std::vector<PartitionResult> counts;
-    PartitionResult merged;
+    std::vector<uint32_t> lefts;
     uint32_t total_left = 0;
     for (const auto& [b, e] : ranges) {
-        counts.push_back(canopy::partition_count(input.data(), b, e, m, s));
-        merged.merge(counts.back());
-        total_left += counts.back().mid;
+        if (s.by_size()) {
+            canopy::SizeCuts cuts;
+            cuts.half = cuts.quarter = s.size_cut;
+            canopy::SizeBins sizes;
+            canopy::bin_sizes(input.data(), b, e, cuts, sizes);
+            lefts.push_back(canopy::left_count(sizes, cuts, s));
+        } else {
+            lefts.push_back(canopy::left_count(*binned(input, b, e, m), s));
+        }
+        total_left += lefts.back();
     }
+    PartitionResult merged;
     uint32_t left_at = ranges.front().first, right_at = ranges.front().first + total_left;
     for (size_t k = 0; k < ranges.size(); ++k) {
         const auto [b, e] = ranges[k];
-        canopy::partition_scatter(input.data(), b, e, m, s, out.data() + left_at, out.data() + right_at);
-        left_at += counts[k].mid;
-        right_at += (e - b) - counts[k].mid;
+        const PartitionResult piece =
+            canopy::partition_into(input.data(), b, e, m, s, out.data() + left_at, out.data() + right_at);
+        EXPECT_EQ(piece.mid, lefts[k]) << "range " << k;
+        merged.merge(piece);
+        left_at += lefts[k];
+        right_at += (e - b) - lefts[k];
     }
     EXPECT_EQ(right_at, ranges.back().second);
     merged.mid = total_left;
@@ -631,14 +645,14 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
         uint32_t n, begin, end;
         std::vector<uint32_t> blocks;  // cycled
     };
-    const uint32_t big = 2 * canopy::kPartitionBlock + 123;
+    const uint32_t big = 2 * kBlock + 123;
     const Case cases[] = {
         {400, 0, 400, {1, 7, 0, 64, 13, 100}},
         {400, 33, 377, {5}},
         {400, 10, 11, {1}},
         {400, 50, 350, {1000}},
-        {big, 0, big, {canopy::kPartitionBlock}},
-        {big, 1000, big - 7, {canopy::kPartitionBlock, 3, canopy::kPartitionBlock / 2}},
+        {big, 0, big, {kBlock}},
+        {big, 1000, big - 7, {kBlock, 3, kBlock / 2}},
     };
     for (const Case& c : cases) {
         const std::vector<PrimRef> input = random_refs(c.n, 21 + c.begin);
@@ -1120,7 +1134,7 @@ TEST(KernelSizeSplit, APlaneThatMakesTheSameSetsWins) {
 }
 
 TEST(KernelSizeSplit, PartitionIsTheStablePartitionByArea) {
-    const uint32_t n = 2 * canopy::kPartitionBlock + 77, begin = 5, end = n - 9;
+    const uint32_t n = 2 * kBlock + 77, begin = 5, end = n - 9;
     const std::vector<PrimRef> input = sized_refs(n, 31);
     const NodeTask t = task_of(input, begin, end);
     const BinMapper m = BinMapper::make(t.cbounds, 16);
@@ -1149,8 +1163,7 @@ TEST(KernelSizeSplit, PartitionIsTheStablePartitionByArea) {
 
         // Blocked, as the parallel node does it: the same records and bounds.
         std::vector<std::pair<uint32_t, uint32_t>> ranges;
-        for (uint32_t b0 = begin; b0 < end; b0 += canopy::kPartitionBlock)
-            ranges.push_back({b0, std::min(end, b0 + canopy::kPartitionBlock)});
+        for (uint32_t b0 = begin; b0 < end; b0 += kBlock) ranges.push_back({b0, std::min(end, b0 + kBlock)});
         std::vector<PrimRef> out = sentinels(n);
         const PartitionResult merged = blocked_partition(input, ranges, m, s, out);
         EXPECT_EQ(merged.mid, s.left_count);
@@ -1174,7 +1187,8 @@ TEST(KernelSizeSplit, ChildrenCarryTheirLargestArea) {
     EXPECT_EQ(p.left_max_area, max_area(dst, 0, p.mid));
     EXPECT_EQ(p.right_max_area, max_area(dst, p.mid, 500));
     EXPECT_GT(p.left_max_area, 0.0f);
-    const PartitionResult c = canopy::partition_count(input.data(), 0, 500, m, s);
+    std::vector<PrimRef> out(500);
+    const PartitionResult c = blocked_partition(input, {{0, 200}, {200, 500}}, m, s, out);
     EXPECT_EQ(c.left_max_area, p.left_max_area);
     EXPECT_EQ(c.right_max_area, p.right_max_area);
     const PartitionResult mid = canopy::middle_split(input.data(), 0, 500);
