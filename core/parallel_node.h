@@ -77,9 +77,9 @@ private:
 
     bool decide_impl(SkipCounts& skip) {
         if (plan_ != Plan::Sah) return true;
-        // Each chunk's left count comes from its own bins, so they are read
-        // before the merge (which accumulates into chunk 0's bins); chunk 0's
-        // is what the others leave of the total.
+        // The merge accumulates into chunk 0's bins and leaves the others as
+        // they were: below, chunk i >= 1 reads its left count from its own
+        // bins, and chunk 0's is what the others leave of the total.
         std::vector<uint32_t>& left = left_at_;
         left.assign(chunks_, 0);
         for (uint32_t i = 1; i < chunks_; ++i) chunk_bins_[0]->merge(*chunk_bins_[i], m_.bins);

@@ -195,6 +195,23 @@ private:
         explicit Invalid(const std::string& w) : Error(w) {}
     };
 
+    // The thread count of the next builds: canopy's option, and an Embree
+    // device made for it (one device at a time: its thread limit is
+    // process-wide). Making one is not timed, and is followed by a longer
+    // idle (kDeviceSettleMs) so that the threads it starts are asleep before
+    // the next timed build.
+    static constexpr int kDeviceSettleMs = 250;
+    void use_threads(uint32_t T) {
+        options_.threads = T;
+#if CANOPY_HAVE_EMBREE
+        if (device_ && device_threads_ == T) return;
+        device_.reset();
+        device_ = std::make_unique<embree::Device>(T);
+        device_threads_ = T;
+        std::this_thread::sleep_for(std::chrono::milliseconds(kDeviceSettleMs));
+#endif
+    }
+
     int run_scene(const std::string& spec, std::ofstream& csv) {
         progress_.show("loading " + (spec.empty() ? std::string("the default scene") : spec));
         Scene scene = spec.empty() ? default_scene() : load_scene(spec);
@@ -214,39 +231,45 @@ private:
         // results[t][b]
         std::vector<std::vector<Measure>> results(threads_.size(), std::vector<Measure>(nb));
         Bvh canonical;  // the first canopy tree of this scene
+        std::vector<std::vector<Bvh>> reference(threads_.size());  // [t][b], from the warm-up
         try {
             for (size_t ti = 0; ti < threads_.size(); ++ti) {
                 const uint32_t T = threads_[ti];
-                options_.threads = T;
-#if CANOPY_HAVE_EMBREE
-                device_.reset();  // one device at a time (its thread limit is process-wide)
-                device_ = std::make_unique<embree::Device>(T);
-#endif
-                std::vector<Bvh> reference(nb);
+                use_threads(T);
+                reference[ti].resize(nb);
                 for (size_t b = 0; b < nb; ++b) {
                     progress_.show(scene.name + ", " + std::to_string(T) + " threads, warm-up " + builders_[b].name);
-                    warm_up(builders_[b], results[ti][b], view, reference[b]);
+                    warm_up(builders_[b], results[ti][b], view, reference[ti][b]);
                     // Every scheduler at every thread count builds the same tree.
                     if (builders_[b].kind != Kind::kCanopy) continue;
                     if (canonical.nodes.empty() && canonical.permutation.empty())
-                        canonical = reference[b];
-                    else if (!(reference[b] == canonical))
+                        canonical = reference[ti][b];
+                    else if (!(reference[ti][b] == canonical))
                         throw Invalid("scheduler " + builders_[b].name + " at " + std::to_string(T) +
                                       " threads built a different tree than the first canopy build");
                 }
-                for (uint32_t r = 0; r < a_.repeat; ++r) {
-                    progress_.show(scene.name + ", " + std::to_string(T) + " threads, round " +
-                                   std::to_string(r + 1) + "/" + std::to_string(a_.repeat));
-                    // Every builder once per round, in a seeded shuffle
-                    // drawn afresh each round, so that no builder always
-                    // follows the same one. (A round-robin that only moved
-                    // its start kept the cyclic order: `sequential` always
-                    // ran right after Embree's builder and measured up to
-                    // 15% slower than the same code did as `omp_tasks` at
-                    // 1 thread.)
+            }
+            for (uint32_t r = 0; r < a_.repeat; ++r) {
+                progress_.show(scene.name + ", round " + std::to_string(r + 1) + "/" + std::to_string(a_.repeat));
+                // Every thread count once per round, and within it every
+                // builder once, each in a seeded shuffle drawn afresh each
+                // round: no builder always follows the same one (a
+                // round-robin that only moved its start kept the cyclic
+                // order, and `sequential`, always right after Embree's
+                // builder, measured up to 15% slower than the same code as
+                // `omp_tasks` at 1 thread), and a slow spell of the machine
+                // (they last minutes here) falls on every thread count
+                // alike instead of on the whole of one, which made the
+                // speedups swing.
+                std::vector<size_t> thread_order(threads_.size());
+                std::iota(thread_order.begin(), thread_order.end(), size_t(0));
+                std::mt19937 trng(0x85EBCA6Bu + r);
+                std::shuffle(thread_order.begin(), thread_order.end(), trng);
+                for (const size_t ti : thread_order) {
+                    use_threads(threads_[ti]);
                     std::vector<size_t> order(nb);
                     std::iota(order.begin(), order.end(), size_t(0));
-                    std::mt19937 rng(0x9E3779B9u + r);
+                    std::mt19937 rng(0x9E3779B9u + 131u * r + uint32_t(ti));
                     std::shuffle(order.begin(), order.end(), rng);
                     for (const size_t b : order) {
                         // Idle first, so that threads the previous builder
@@ -254,14 +277,15 @@ private:
                         // region, TBB's workers) are asleep and do not take
                         // this builder's cores.
                         if (a_.gap_ms) std::this_thread::sleep_for(std::chrono::milliseconds(a_.gap_ms));
-                        results[ti][b].ms.push_back(timed(builders_[b], view, reference[b]));
+                        results[ti][b].ms.push_back(timed(builders_[b], view, reference[ti][b]));
                     }
                 }
-                for (Measure& m : results[ti]) {
+            }
+            for (auto& row : results)
+                for (Measure& m : row) {
                     m.median = median(m.ms);
                     m.min = *std::min_element(m.ms.begin(), m.ms.end());
                 }
-            }
         } catch (const Invalid& e) {
             progress_.clear();
             std::cerr << "canopy bench: " << scene.name << ": " << e.what() << "\n";
@@ -320,6 +344,7 @@ private:
     bool header_printed_ = false;
 #if CANOPY_HAVE_EMBREE
     std::unique_ptr<embree::Device> device_;
+    uint32_t device_threads_ = 0;
     std::unique_ptr<embree::Input> input_;
 #endif
 };
