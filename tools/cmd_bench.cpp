@@ -122,8 +122,9 @@ public:
 
 private:
     void print_header() const {
-        std::printf("canopy bench: build times in ms, medians of %u alternated runs (builders in a seeded shuffle each round, "
-                    "after one warm-up round, %u ms idle before each run); bins %u, leaf %u\n",
+        std::printf("canopy bench: build times in ms, medians of %u alternated runs (each round: the thread counts in a "
+                    "seeded shuffle, the builders in a seeded shuffle within each; after one warm-up round, %u ms idle "
+                    "before each run); bins %u, leaf %u\n",
                     a_.repeat, a_.gap_ms, a_.bins, a_.leaf);
 #if CANOPY_HAVE_EMBREE
         std::printf("  vs_embree: median / median of Embree %s's scene build (rtcCommitScene) at the same "
