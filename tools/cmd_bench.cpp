@@ -232,20 +232,19 @@ private:
         // results[t][b]
         std::vector<std::vector<Measure>> results(threads_.size(), std::vector<Measure>(nb));
         Bvh canonical;  // the first canopy tree of this scene
-        std::vector<std::vector<Bvh>> reference(threads_.size());  // [t][b], from the warm-up
         try {
             for (size_t ti = 0; ti < threads_.size(); ++ti) {
                 const uint32_t T = threads_[ti];
                 use_threads(T);
-                reference[ti].resize(nb);
                 for (size_t b = 0; b < nb; ++b) {
                     progress_.show(scene.name + ", " + std::to_string(T) + " threads, warm-up " + builders_[b].name);
-                    warm_up(builders_[b], results[ti][b], view, reference[ti][b]);
+                    Bvh tree;
+                    warm_up(builders_[b], results[ti][b], view, tree);
                     // Every scheduler at every thread count builds the same tree.
                     if (builders_[b].kind != Kind::kCanopy) continue;
                     if (canonical.nodes.empty() && canonical.permutation.empty())
-                        canonical = reference[ti][b];
-                    else if (!(reference[ti][b] == canonical))
+                        canonical = std::move(tree);
+                    else if (!(tree == canonical))
                         throw Invalid("scheduler " + builders_[b].name + " at " + std::to_string(T) +
                                       " threads built a different tree than the first canopy build");
                 }
@@ -278,7 +277,9 @@ private:
                         // region, TBB's workers) are asleep and do not take
                         // this builder's cores.
                         if (a_.gap_ms) std::this_thread::sleep_for(std::chrono::milliseconds(a_.gap_ms));
-                        results[ti][b].ms.push_back(timed(builders_[b], view, reference[ti][b]));
+                        // Every canopy tree equals `canonical` (checked in
+                        // the warm-up), so one tree serves every check.
+                        results[ti][b].ms.push_back(timed(builders_[b], view, canonical));
                     }
                 }
             }
