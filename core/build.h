@@ -50,7 +50,6 @@ void build_into(BuildState& st, size_t count, BuildStats* stats) {
                           std::to_string(st.options.max_leaf) + " (needs " +
                           std::to_string(ceil_log2(static_cast<uint32_t>(leaves_needed))) + ")");
     st.refs.allocate(count);
-    st.scratch.allocate(count);
     reserve_on_huge_pages(st.bvh.permutation, count);
     st.bvh.permutation.resize(count);
     S::run(st);
@@ -95,8 +94,7 @@ Bvh build(std::span<const Box> boxes, const BuildOptions& options = {}, BuildSta
 }
 
 // A builder that keeps its memory between builds: the primitive records, the
-// partition's second buffer, the parallel drivers' per-thread bins and node
-// chunks, and one tree's arrays. It builds the same trees as build<S>(); a
+// parallel drivers' per-thread bins and node chunks, and one tree's arrays. It builds the same trees as build<S>(); a
 // build no bigger than an earlier one allocates almost nothing (a "warm"
 // build: `canopy build --warm`). One build at a time per Builder.
 //

@@ -51,8 +51,7 @@ struct BuildState {
     const TriangleView* mesh = nullptr;  // one of mesh / boxes is the input
     std::span<const Box> boxes;
 
-    RawArray<PrimRef> refs;     // the records (buffer 0)
-    RawArray<PrimRef> scratch;  // the partition's second buffer (buffer 1)
+    RawArray<PrimRef> refs;     // the records, partitioned in place
     Workers workers;            // the parallel drivers' per-thread scratch
     bool keep_memory = false;   // a warm Builder's state: release nothing early
     Bvh bvh;
@@ -60,14 +59,13 @@ struct BuildState {
     BuildStats stats;
     TraceLog* trace = nullptr;  // optional
 
-    KernelContext context() { return {{refs.get(), scratch.get()}, bvh.permutation.data(), &options, trace}; }
+    KernelContext context() { return {refs.get(), bvh.permutation.data(), &options, trace}; }
 
-    // Frees both record buffers once the tree no longer needs them, unless
-    // the state is kept for further builds.
+    // Frees the records once the tree no longer needs them, unless the state
+    // is kept for further builds.
     void release_records() {
         if (keep_memory) return;
         refs.release();
-        scratch.release();
     }
 
     // Computes refs[first, last) from primitives first..last-1.

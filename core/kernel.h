@@ -2,16 +2,14 @@
 // called alone: bin, evaluate, partition, emit. Every scheduler drives these
 // same functions; nothing here knows about threads.
 //
-// The canonical partition order is the *stable* partition: the primitives
-// going left keep their relative order, followed by those going right in
-// their relative order. It is unique, so a parallel blocked partition
-// (count per block, prefix sum, scatter) reproduces it bit for bit.
+// The canonical partition is in place and swaps misplaced records in pairs:
+// the k-th record of the left part that goes right trades places with the
+// k-th record of the right part that goes left (see partition()). The pairs
+// depend only on each record's side, so a team-parallel node that finds the
+// sides by chunks reproduces the result bit for bit.
 //
-// Records live in two buffers of the same size. A partition reads a node's
-// range from one buffer and writes it, partitioned, to the same range of the
-// other (one read and one write per record, no copy back); each task knows
-// which buffer holds its range. A leaf writes its primitive ids straight to
-// the permutation.
+// The records live in one buffer; each node task owns a contiguous range of
+// it, and a leaf writes its primitive ids straight to the permutation.
 #pragma once
 
 #include "geometry.h"
@@ -23,6 +21,7 @@
 #include <bit>
 #include <cstdint>
 #include <cstring>
+#include <vector>
 #include <limits>
 
 #include <emmintrin.h>
@@ -43,7 +42,6 @@ struct NodeTask {
     uint32_t parent_begin = 0;
     uint8_t rights = 0;
     bool is_right = false;
-    uint8_t buffer = 0;  // which of the two record buffers holds the range
 
     uint32_t size() const { return end - begin; }
 };
@@ -638,20 +636,29 @@ inline bool goes_left(const PrimRef& r, const BinMapper& m, const Split& s) {
     });
 }
 
-// Step 3: the stable partition of src[begin, end) around the split,
-// written to dst[begin, end): the split's left_count records going left
-// first, then the others, each side in its input order. Child bounds are
-// accumulated in the same pass.
-// Blocks of 64 records: the sides of a block are found first, as a bit mask,
-// without a branch; then the left-going records are copied and their bounds
-// grown in one loop over the mask's set bits, and the right-going ones in
-// another. A branch per record on its side, as this was written before,
-// mispredicts wherever neighbouring records go different ways: on
-// `dragon_vrip_res2` an estimated 15% of the build went to them (perf
-// samples piling up right after that branch), and
-// the mask made the sequential build 0.81x as long (bunny 0.77x, 1M random
-// triangles 0.71x, Sibenik 0.92x; the 1M sphere and stadium, whose
-// neighbours mostly go the same way, 1.02-1.03x).
+// Step 3: the partition, in place. With mid = begin + the split's
+// left_count, the records of [begin, mid) that go right and the records of
+// [mid, end) that go left are equally many; the k-th of the first (in
+// position order) trades places with the k-th of the second, and every other
+// record stays where it is. Child bounds are accumulated in the same pass.
+// The result depends only on which side each record goes to, not on the
+// order in which the sides are found, so a team-parallel node reproduces it
+// bit for bit from side bits found by chunks (see mark_sides() and
+// swap_misplaced() below).
+//
+// In place, the records need one buffer: until 2026-12-02 the partition was
+// the stable one, written to a second buffer of the same size (32 more bytes
+// per primitive at the peak of a build). In alternated sequential runs the
+// in-place version took the same time on the 1M sphere and up to 3% longer
+// on `dragon_vrip_res2` and the bunny; it writes only the misplaced records.
+//
+// Sides are found 64 records at a time, as a bit mask, without a branch; the
+// child bounds are then grown over the mask's set bits and over its clear
+// bits, and the misplaced pairs swapped. A branch per record on its side,
+// as the first version had, mispredicts wherever neighbouring records go
+// different ways: on `dragon_vrip_res2` an estimated 15% of the build went
+// to them, and the mask made the sequential build 0.81x as long (bunny
+// 0.77x, 1M random triangles 0.71x; the 1M sphere 1.02x).
 inline constexpr uint32_t kSideBlock = 64;
 
 // Bit k set: record r[k] goes left (n <= kSideBlock). No branch.
@@ -662,82 +669,185 @@ uint64_t left_mask(const PrimRef* r, uint32_t n, const Test& side) {
         mask |= uint64_t(side.left(simd::centroid(simd::lo(r[k]), simd::hi(r[k])), simd::hi_area(r[k]))) << k;
     return mask;
 }
-inline uint64_t block_bits(uint32_t n) { return n == 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1; }
+inline uint64_t block_bits(uint32_t n) { return n >= 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1; }
 
-// Copies the records of block r whose bits are set to `out`, growing side
-// `Side` of `acc` (a constant side, so the accumulators stay in registers).
+// Grows side `Side` of `acc` (a constant side, so the accumulators stay in
+// registers) with the records of block r whose bits are set.
 template <int Side>
-inline void copy_side(const PrimRef* r, uint64_t bits, PrimRef*& out, ChildBounds4& acc) {
+inline void grow_side(const PrimRef* r, uint64_t bits, ChildBounds4& acc) {
     for (; bits; bits &= bits - 1) {
         const PrimRef& x = r[std::countr_zero(bits)];
-        *out++ = x;
         const __m128 lo = simd::lo(x);
         acc.add(Side, lo, simd::hi_area(x), simd::centroid(lo, simd::hi(x)));
     }
 }
 
-// The partition loop: refs[b, e)'s left-going records in order from
-// `left` on, the right-going ones from `right` on; returns the child bounds
-// (mid: how many went left).
+// The side mask of a block of n <= kSideBlock records, with their bounds
+// grown into the side each goes to.
 template <class Test>
-PartitionResult partition_with(const PrimRef* src, uint32_t b, uint32_t e, PrimRef* left, PrimRef* right,
-                               const Test& side) {
-    ChildBounds4 acc;
-    const PrimRef* const left_start = left;
-    for (uint32_t b0 = b; b0 < e; b0 += kSideBlock) {
-        const uint32_t n = std::min(kSideBlock, e - b0);
-        const PrimRef* r = src + b0;
-        const uint64_t lmask = left_mask(r, n, side);
-        copy_side<0>(r, lmask, left, acc);
-        copy_side<1>(r, ~lmask & block_bits(n), right, acc);
-    }
+inline uint64_t mark_block(const PrimRef* r, uint32_t n, const Test& side, ChildBounds4& acc) {
+    const uint64_t left = left_mask(r, n, side);
+    grow_side<0>(r, left, acc);
+    grow_side<1>(r, ~left & block_bits(n), acc);
+    return left;
+}
+
+inline void swap_refs(PrimRef& a, PrimRef& b) {
+    const __m128 a0 = _mm_load_ps(&a.lo.x), a1 = _mm_load_ps(&a.hi.x);
+    const __m128 b0 = _mm_load_ps(&b.lo.x), b1 = _mm_load_ps(&b.hi.x);
+    _mm_store_ps(&a.lo.x, b0);
+    _mm_store_ps(&a.hi.x, b1);
+    _mm_store_ps(&b.lo.x, a0);
+    _mm_store_ps(&b.hi.x, a1);
+}
+
+inline PartitionResult result_of(const ChildBounds4& acc, uint32_t mid) {
     PartitionResult res;
     acc.into(res);
-    res.mid = static_cast<uint32_t>(left - left_start);
+    res.mid = mid;
     return res;
+}
+
+// The partition loop over refs[b, e) with left part [b, mid).
+template <class Test>
+PartitionResult partition_with(PrimRef* refs, uint32_t b, uint32_t mid, uint32_t e, const Test& side) {
+    ChildBounds4 acc;
+    if (e - b <= kSideBlock) {
+        // One block (most nodes): one mask, the left part its low bits.
+        PrimRef* r = refs + b;
+        const uint64_t left = mark_block(r, e - b, side, acc);
+        const uint64_t low = block_bits(mid - b);
+        for (uint64_t mi = ~left & low, mj = left & ~low; mi; mi &= mi - 1, mj &= mj - 1)
+            swap_refs(r[std::countr_zero(mi)], r[std::countr_zero(mj)]);
+        return result_of(acc, mid);
+    }
+    // A cursor in each part, i in [b, mid) and j in [mid, e), each with the
+    // misplaced records of its current block as bits (mi: going right, mj:
+    // going left); pairs are swapped in order while both have some.
+    uint32_t i = b, j = mid;
+    uint64_t mi = 0, mj = 0;
+    PrimRef* ri = refs + b;
+    PrimRef* rj = refs + mid;
+    for (;;) {
+        if (!mi) {
+            if (i >= mid) break;
+            const uint32_t n = std::min(kSideBlock, mid - i);
+            ri = refs + i;
+            mi = ~mark_block(ri, n, side, acc) & block_bits(n);
+            i += n;
+        }
+        if (!mj) {
+            if (j >= e) break;
+            const uint32_t n = std::min(kSideBlock, e - j);
+            rj = refs + j;
+            mj = mark_block(rj, n, side, acc);
+            j += n;
+        }
+        for (; mi && mj; mi &= mi - 1, mj &= mj - 1) swap_refs(ri[std::countr_zero(mi)], rj[std::countr_zero(mj)]);
+    }
+    // What is left of either part has no misplaced record: bounds only.
+    for (; i < mid; i += kSideBlock) mark_block(refs + i, std::min(kSideBlock, mid - i), side, acc);
+    for (; j < e; j += kSideBlock) mark_block(refs + j, std::min(kSideBlock, e - j), side, acc);
+    return result_of(acc, mid);
 }
 
 // Size splits are rare; their loop stays out of line, so that the plane
-// partition inlines into run_node as before.
-[[gnu::noinline]] inline PartitionResult partition_by_size(const PrimRef* src, uint32_t b, uint32_t e,
-                                                           PrimRef* left, PrimRef* right, const Split& s) {
-    return partition_with(src, b, e, left, right, SizeTest(s));
+// partition inlines into run_node.
+[[gnu::noinline]] inline PartitionResult partition_by_size(PrimRef* refs, uint32_t b, uint32_t mid, uint32_t e,
+                                                           const Split& s) {
+    return partition_with(refs, b, mid, e, SizeTest(s));
 }
 
-// Step 3 for a piece of a node: refs[b, e) partitioned around the split,
-// left-going records written in order from left_out on and right-going ones
-// from right_out on (any buffer); returns their bounds, with mid = the number
-// that went left. partition() is this with the outputs at the node's range
-// in the other buffer; a team-parallel node runs it on consecutive blocks
-// with outputs placed by prefix sums of the blocks' left counts (see
-// left_count()), which reproduces partition() bit for bit: the stable
-// partition is unique.
-inline PartitionResult partition_into(const PrimRef* refs, uint32_t b, uint32_t e, const BinMapper& m,
-                                      const Split& s, PrimRef* left_out, PrimRef* right_out) {
-    if (s.by_size()) return partition_by_size(refs, b, e, left_out, right_out, s);
-    return partition_with(refs, b, e, left_out, right_out, SideTest(m, s));
+inline PartitionResult partition(PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, const Split& s) {
+    const uint32_t mid = begin + s.left_count;
+    if (s.by_size()) return partition_by_size(refs, begin, mid, end, s);
+    return partition_with(refs, begin, mid, end, SideTest(m, s));
 }
 
-inline PartitionResult partition(const PrimRef* src, PrimRef* dst, uint32_t begin, uint32_t end,
-                                 const BinMapper& m, const Split& s) {
-    PartitionResult res = partition_into(src, begin, end, m, s, dst + begin, dst + begin + s.left_count);
-    res.mid = begin + s.left_count;
-    return res;
+// The partition of a node by a team, in two parallel passes (after binning):
+//  1. mark_sides() over ranges of the node that start at multiples of 64
+//     records from its begin, in any order: each range's side bits (bit
+//     i - begin of `sides` set: record i goes left; whole words, zero past
+//     the range's end) and its share of the child bounds (merged exactly);
+//  2. plan_swaps() (one thread, a popcount walk over the words) cuts the
+//     misplaced pairs into pieces by rank, and swap_misplaced() swaps one
+//     piece's pairs; pieces touch disjoint records, in any order.
+// The pairs are the ones partition() swaps, so the records end the same.
+inline PartitionResult mark_sides(const PrimRef* refs, uint32_t b, uint32_t e, uint32_t node_begin,
+                                  const BinMapper& m, const Split& s, uint64_t* sides) {
+    return with_side_test(m, s, [&](const auto& side) {
+        ChildBounds4 acc;
+        for (uint32_t i = b; i < e; i += kSideBlock)
+            sides[(i - node_begin) / kSideBlock] = mark_block(refs + i, std::min(kSideBlock, e - i), side, acc);
+        return result_of(acc, 0);
+    });
 }
 
-// How many records of a binned range go left: for a plane split, the counts
-// of the bins below the split index on its axis (the bins and the partition
-// share BinMapper's mapping, so this is exact); for a size split, the counts
-// of the size classes below the cut.
-inline uint32_t left_count(const BinArrays& bins, const Split& s) {
-    uint32_t n = 0;
-    for (uint32_t k = 0; k < s.index; ++k) n += bins.count(s.axis, k);
-    return n;
+// A run of misplaced pairs: the first pair's positions in the left part and
+// in the right part, and how many pairs.
+struct SwapPiece {
+    uint32_t left_at = 0, right_at = 0, count = 0;
+};
+
+// The first position at or after `at` whose side bit is `want` (one exists).
+inline uint32_t next_side(const uint64_t* sides, uint32_t node_begin, uint32_t at, bool want) {
+    const auto word = [&](uint32_t w) { return want ? sides[w] : ~sides[w]; };
+    uint32_t w = (at - node_begin) / 64;
+    uint64_t bits = word(w) & (~uint64_t(0) << ((at - node_begin) % 64));
+    while (!bits) bits = word(++w);
+    return node_begin + w * 64 + uint32_t(std::countr_zero(bits));
 }
-inline uint32_t left_count(const SizeBins& sizes, const SizeCuts& cuts, const Split& s) {
-    // Area < size_cut goes left: classes 1 and 2 for the cut at half, class 2
-    // for the cut at a quarter (when the two cuts are equal, class 1 is empty).
-    return (s.size_cut == cuts.half ? sizes.count[1] : 0) + sizes.count[2];
+
+// Cuts the misplaced pairs of the node [begin, end) split at mid into
+// pieces of `per_piece` pairs (the last may have fewer), in rank order.
+inline void plan_swaps(const uint64_t* sides, uint32_t begin, uint32_t mid, uint32_t per_piece,
+                       std::vector<SwapPiece>& pieces) {
+    pieces.clear();
+    // Finds the positions of increasing ranks among one part's `want` bits,
+    // from word w on (bits of word w below `first` masked off).
+    struct Walk {
+        const uint64_t* sides;
+        uint32_t begin;
+        bool want;
+        uint32_t w, first_word;
+        uint64_t first_mask;
+        uint32_t seen = 0;  // wanted bits before word w
+        uint64_t bits(uint32_t k) const {
+            const uint64_t v = want ? sides[k] : ~sides[k];
+            return k == first_word ? v & first_mask : v;
+        }
+        uint32_t find(uint32_t rank) {
+            for (;; seen += uint32_t(std::popcount(bits(w))), ++w) {
+                uint64_t v = bits(w);
+                if (seen + uint32_t(std::popcount(v)) <= rank) continue;
+                for (uint32_t r = rank - seen; r; --r) v &= v - 1;
+                return begin + w * 64 + uint32_t(std::countr_zero(v));
+            }
+        }
+    };
+    const uint32_t nl = mid - begin;
+    uint32_t stay = 0;  // left-going records in [begin, mid)
+    for (uint32_t w = 0; w < nl / 64; ++w) stay += uint32_t(std::popcount(sides[w]));
+    if (nl % 64) stay += uint32_t(std::popcount(sides[nl / 64] & block_bits(nl % 64)));
+    const uint32_t misplaced = nl - stay;
+    Walk left{sides, begin, false, 0, 0, ~uint64_t(0)};
+    Walk right{sides, begin, true, nl / 64, nl / 64, ~block_bits(nl % 64)};
+    for (uint32_t k = 0; k < misplaced; k += per_piece) {
+        SwapPiece p;
+        p.left_at = left.find(k);
+        p.right_at = right.find(k);
+        p.count = std::min(per_piece, misplaced - k);
+        pieces.push_back(p);
+    }
+}
+
+inline void swap_misplaced(PrimRef* refs, const uint64_t* sides, uint32_t node_begin, const SwapPiece& p) {
+    uint32_t i = p.left_at, j = p.right_at;
+    for (uint32_t c = 0; c < p.count; ++c, ++i, ++j) {
+        i = next_side(sides, node_begin, i, false);
+        j = next_side(sides, node_begin, j, true);
+        swap_refs(refs[i], refs[j]);
+    }
 }
 
 // Bounds of refs[b, e) as one side of a middle split.
@@ -761,9 +871,8 @@ inline PartitionResult middle_split(const PrimRef* refs, uint32_t begin, uint32_
     return res;
 }
 
-// Step 4: the two child tasks of a split node; `moved` says whether the
-// partition wrote the records to the other buffer (a middle split does not).
-inline void emit(const NodeTask& t, const PartitionResult& p, bool moved, NodeTask out[2]) {
+// Step 4: the two child tasks of a split node.
+inline void emit(const NodeTask& t, const PartitionResult& p, NodeTask out[2]) {
     out[0].begin = t.begin;
     out[0].end = p.mid;
     out[0].bounds = p.left_bounds;
@@ -779,7 +888,6 @@ inline void emit(const NodeTask& t, const PartitionResult& p, bool moved, NodeTa
         out[k].parent_begin = t.begin;
         out[k].is_right = k == 1;
         out[k].rights = static_cast<uint8_t>(t.rights + k);
-        out[k].buffer = static_cast<uint8_t>(moved ? 1 - t.buffer : t.buffer);
     }
 }
 
@@ -840,19 +948,15 @@ inline bool leaf_by_bound(const PrimRef* refs, const NodeTask& t, const BuildOpt
 class TraceLog;
 
 struct KernelContext {
-    PrimRef* buffers[2];     // the records, and the partition's second buffer
+    PrimRef* refs;           // the records, partitioned in place
     uint32_t* permutation;   // leaves write their ids here
     const BuildOptions* options;
     TraceLog* trace;         // null unless the build is traced (see trace.h)
-
-    const PrimRef* src(const NodeTask& t) const { return buffers[t.buffer]; }
-    PrimRef* dst(const NodeTask& t) const { return buffers[1 - t.buffer]; }
 };
 
 // Writes a leaf's primitive ids to the permutation.
 inline void write_leaf(const KernelContext& ctx, const NodeTask& t) {
-    const PrimRef* r = ctx.src(t);
-    for (uint32_t i = t.begin; i < t.end; ++i) ctx.permutation[i] = r[i].id;
+    for (uint32_t i = t.begin; i < t.end; ++i) ctx.permutation[i] = ctx.refs[i].id;
 }
 
 // The whole node task, sequentially: returns false for a leaf (whose ids it
@@ -863,11 +967,10 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     const BuildOptions& opt = *ctx.options;
     const Plan p = plan(t, opt, skip);
     PartitionResult part;
-    bool moved = false;
     if (p == Plan::Middle) {
-        part = middle_split(ctx.src(t), t.begin, t.end);
+        part = middle_split(ctx.refs, t.begin, t.end);
     } else if (p == Plan::Sah) {
-        if (t.size() <= opt.max_leaf && leaf_by_bound(ctx.src(t), t, opt)) {
+        if (t.size() <= opt.max_leaf && leaf_by_bound(ctx.refs, t, opt)) {
             ++skip.bound_leaves;
             write_leaf(ctx, t);
             return false;
@@ -879,17 +982,17 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
                 write_leaf(ctx, t);
                 return false;
             }
-            part = middle_split(ctx.src(t), t.begin, t.end);
+            part = middle_split(ctx.refs, t.begin, t.end);
         } else {
             skip.axes_not_binned += 3 - m.valid_count();
             bins.clear(m.bins);
-            bin(ctx.src(t), t.begin, t.end, m, bins);
+            bin(ctx.refs, t.begin, t.end, m, bins);
             Split s = evaluate(bins, m, t.bounds, opt);
             if (t.size() >= kSizeSplitMinPrims) {
                 const SizeCuts cuts = SizeCuts::of(t.bounds);
                 if (cuts.applies(t)) {
                     SizeBins sizes;
-                    bin_sizes(ctx.src(t), t.begin, t.end, cuts, sizes);
+                    bin_sizes(ctx.refs, t.begin, t.end, cuts, sizes);
                     consider_size_split(sizes, cuts, t.bounds, opt, s);
                     skip.size_splits += s.by_size();
                 }
@@ -899,17 +1002,16 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
                 return false;
             }
             if (s.found()) {
-                part = partition(ctx.src(t), ctx.dst(t), t.begin, t.end, m, s);
-                moved = true;
+                part = partition(ctx.refs, t.begin, t.end, m, s);
             } else {
-                part = middle_split(ctx.src(t), t.begin, t.end);
+                part = middle_split(ctx.refs, t.begin, t.end);
             }
         }
     } else {
         write_leaf(ctx, t);
         return false;
     }
-    emit(t, part, moved, children);
+    emit(t, part, children);
     return true;
 }
 

@@ -7,12 +7,12 @@
 // run_parallel_node). The result is bit-identical to run_node():
 //  - bins merge with min/max and integer sums only (exact, order-free), so
 //    how the range is cut into chunks does not matter;
-//  - the partition is the stable one, which is unique: the chunks that were
-//    binned know from their own bins how many of their records go left, a
-//    prefix sum over them gives every chunk its output offsets, and each
-//    chunk copies its records to the other buffer, accumulating its share of
-//    the child bounds on the way (merged exactly too). Two passes over the
-//    records, as in run_node(): bin, then partition.
+//  - the partition swaps the same pairs as partition() (see mark_sides()
+//    in kernel.h): the chunks find their records' sides as bits, with their
+//    share of the child bounds (merged exactly too); one thread cuts the
+//    misplaced pairs into pieces by rank, and the pieces are swapped in
+//    parallel. Bin, mark and swap: the swap pass touches only the misplaced
+//    records.
 #pragma once
 
 #include "kernel.h"
@@ -27,7 +27,8 @@ namespace canopy {
 
 class ParallelNode {
 public:
-    static constexpr uint32_t kChunk = 32768;  // records per chunk (bin and partition)
+    static constexpr uint32_t kChunk = 32768;  // records per chunk (bin and mark); a multiple of 64
+    static constexpr uint32_t kSwapPiece = 16384;  // misplaced pairs per swap piece
 
     ParallelNode(const KernelContext& ctx, const NodeTask& t) : ctx_(ctx), t_(t) {}
     const NodeTask& task() const { return t_; }
@@ -77,11 +78,6 @@ private:
 
     bool decide_impl(SkipCounts& skip) {
         if (plan_ != Plan::Sah) return true;
-        // The merge accumulates into chunk 0's bins and leaves the others as
-        // they were: below, chunk i >= 1 reads its left count from its own
-        // bins, and chunk 0's is what the others leave of the total.
-        std::vector<uint32_t>& left = left_at_;
-        left.assign(chunks_, 0);
         for (uint32_t i = 1; i < chunks_; ++i) chunk_bins_[0]->merge(*chunk_bins_[i], m_.bins);
         split_ = evaluate(*chunk_bins_[0], m_, t_.bounds, *ctx_.options);
         if (sizes_) {
@@ -94,24 +90,7 @@ private:
             plan_ = Plan::Middle;
             return true;
         }
-        // Output offsets: chunk i's left-going records from left_at_[i] on,
-        // its right-going ones from right_at_[i] on (relative to t_.begin).
-        uint32_t others = 0;
-        for (uint32_t i = 1; i < chunks_; ++i) {
-            left[i] = split_.by_size() ? left_count(chunk_sizes_[i], cuts_, split_) : left_count(*chunk_bins_[i], split_);
-            others += left[i];
-        }
-        left[0] = split_.left_count - others;
-        right_at_.resize(chunks_);
-        uint32_t at_left = 0, at_right = split_.left_count;
-        for (uint32_t i = 0; i < chunks_; ++i) {
-            const auto [lo, hi] = chunk_range(i);
-            const uint32_t nl = left[i];
-            left[i] = at_left;
-            right_at_[i] = at_right;
-            at_left += nl;
-            at_right += (hi - lo) - nl;
-        }
+        sides_.resize((t_.size() + kSideBlock - 1) / kSideBlock);
         return true;
     }
 
@@ -122,21 +101,28 @@ public:
         BinSet& b = *chunk_bins_[i];
         b.clear(m_.bins);
         const auto [lo, hi] = chunk_range(i);
-        bin(ctx_.src(t_), lo, hi, m_, b);
-        if (sizes_) bin_sizes(ctx_.src(t_), lo, hi, cuts_, chunk_sizes_[i]);
+        bin(ctx_.refs, lo, hi, m_, b);
+        if (sizes_) bin_sizes(ctx_.refs, lo, hi, cuts_, chunk_sizes_[i]);
     }
 
-    // Whether the split moves records (a SAH split) or is a middle split.
+    // Whether the split moves records (a SAH split) or is a middle split,
+    // which leaves them in place.
     bool moves() const { return plan_ == Plan::Sah; }
     uint32_t chunks() const { return chunks_; }
 
-    // Parallel over [0, chunks()), SAH splits: copies a chunk's records to
-    // their places in the other buffer, with its share of the child bounds.
-    void scatter_chunk(uint32_t i) {
+    // Parallel over [0, chunks()), SAH splits: a chunk's side bits and its
+    // share of the child bounds.
+    void mark_chunk(uint32_t i) {
         const auto [lo, hi] = chunk_range(i);
-        PrimRef* out = ctx_.dst(t_) + t_.begin;
-        chunk_[i] = partition_into(ctx_.src(t_), lo, hi, m_, split_, out + left_at_[i], out + right_at_[i]);
+        chunk_[i] = mark_sides(ctx_.refs, lo, hi, t_.begin, m_, split_, sides_.data());
     }
+
+    // Serial, after mark_chunk(): cuts the misplaced pairs into pieces.
+    void cut_swaps() { plan_swaps(sides_.data(), t_.begin, t_.begin + split_.left_count, kSwapPiece, pieces_); }
+
+    // Parallel over [0, pieces()): swaps one piece's pairs.
+    uint32_t pieces() const { return static_cast<uint32_t>(pieces_.size()); }
+    void swap_piece(uint32_t i) { swap_misplaced(ctx_.refs, sides_.data(), t_.begin, pieces_[i]); }
 
     // Parallel over [0, chunks()), middle splits: a chunk's share of each
     // half's bounds (the records stay where they are).
@@ -144,8 +130,8 @@ public:
         const auto [lo, hi] = chunk_range(i);
         const uint32_t mid = t_.begin + t_.size() / 2;
         ChildBounds4 acc;
-        grow_range(ctx_.src(t_), lo, std::max(lo, std::min(hi, mid)), acc, 0);
-        grow_range(ctx_.src(t_), std::min(hi, std::max(lo, mid)), hi, acc, 1);
+        grow_range(ctx_.refs, lo, std::max(lo, std::min(hi, mid)), acc, 0);
+        grow_range(ctx_.refs, std::min(hi, std::max(lo, mid)), hi, acc, 1);
         chunk_[i] = PartitionResult{};
         acc.into(chunk_[i]);
     }
@@ -155,7 +141,7 @@ public:
         PartitionResult r;
         for (const PartitionResult& c : chunk_) r.merge(c);
         r.mid = t_.begin + (moves() ? split_.left_count : t_.size() / 2);
-        emit(t_, r, moves(), children);
+        emit(t_, r, children);
     }
 
 private:
@@ -176,7 +162,8 @@ private:
     std::vector<std::unique_ptr<BinSet>> chunk_bins_;
     std::vector<SizeBins> chunk_sizes_;
     std::vector<PartitionResult> chunk_;  // each chunk's share of the child bounds
-    std::vector<uint32_t> left_at_, right_at_;
+    std::vector<uint64_t> sides_;  // bit i: record t_.begin + i goes left
+    std::vector<SwapPiece> pieces_;
 };
 
 // Runs a big node with a scheduler's means: for_each(k, fn) calls fn(i) for
@@ -187,8 +174,8 @@ private:
 // Returns whether the node split (children written to `children`, which
 // in an OpenMP team must be shared). With a trace log (given by one caller
 // only), each phase becomes a span on that caller's track: the parallel
-// ones (bin, scatter, or count for a middle split) last until the whole
-// team is done.
+// ones (bin, mark and swap, or count for a middle split) last until the
+// whole team is done.
 template <class ForEach, class Serial>
 bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip, ForEach&& for_each,
                        Serial&& serial, TraceLog* log = nullptr, uint32_t worker = 0) {
@@ -201,9 +188,13 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
     phase(TraceSpan::Bin, [&] { for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); }); });
     phase(TraceSpan::Evaluate, [&] { serial([&] { pn.decide(skip); }); });
     if (!pn.splits()) return false;
-    if (pn.moves())
-        phase(TraceSpan::Scatter, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.scatter_chunk(i); }); });
-    else
+    if (pn.moves()) {
+        phase(TraceSpan::Mark, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.mark_chunk(i); }); });
+        phase(TraceSpan::Swap, [&] {
+            serial([&] { pn.cut_swaps(); });
+            for_each(pn.pieces(), [&](uint32_t i) { pn.swap_piece(i); });
+        });
+    } else
         phase(TraceSpan::Count, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.middle_chunk(i); }); });
     phase(TraceSpan::Finish, [&] { serial([&] { pn.finish(children); }); });
     return true;

@@ -23,9 +23,9 @@ namespace canopy {
 struct TraceSpan {
     // How the node ran; the kinds from Start on are the phases of a
     // team-parallel node (see run_parallel_node).
-    enum Kind : uint8_t { Task, Inline, Parallel, Start, Bin, Evaluate, Count, Scatter, Finish };
-    static constexpr const char* kKindNames[] = {"task",  "inline", "parallel", "start",  "bin",
-                                                 "evaluate", "count", "scatter", "finish"};
+    enum Kind : uint8_t { Task, Inline, Parallel, Start, Bin, Evaluate, Count, Mark, Swap, Finish };
+    static constexpr const char* kKindNames[] = {"task",     "inline", "parallel", "start", "bin",
+                                                 "evaluate", "count",  "mark",     "swap",  "finish"};
     uint64_t start_ns, end_ns;  // since the log's start
     uint32_t worker;
     uint32_t node;              // canonical node index (filled in after placement)

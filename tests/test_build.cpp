@@ -656,7 +656,7 @@ TEST(BuildLayout, KernelTasksInRandomOrderPlaceLikeSequential) {
         const Bvh expected = build(m, opt);
         const uint32_t n = uint32_t(m.triangle_count());
 
-        std::vector<canopy::PrimRef> refs(n), scratch(n);
+        std::vector<canopy::PrimRef> refs(n);
         const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs.data());
         ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
         canopy::NodeTask root;
@@ -666,7 +666,7 @@ TEST(BuildLayout, KernelTasksInRandomOrderPlaceLikeSequential) {
         root.cbounds = s.cbounds;
 
         std::vector<uint32_t> perm(n, ~0u);
-        const canopy::KernelContext ctx{{refs.data(), scratch.data()}, perm.data(), &opt};
+        const canopy::KernelContext ctx{refs.data(), perm.data(), &opt, nullptr};
         auto bins = std::make_unique<canopy::BinSet>();
         canopy::SkipCounts skip;
         std::mt19937 rng(n);

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <numeric>
 #include <cfloat>
 #include <cmath>
 #include <cstdint>
@@ -503,53 +504,56 @@ Split make_split(const std::vector<PrimRef>& refs, uint32_t begin, uint32_t end,
     return s;
 }
 
-// A buffer of n records that are all distinguishable from real ones.
-std::vector<PrimRef> sentinels(uint32_t n) {
-    std::vector<PrimRef> v(n);
-    for (uint32_t i = 0; i < n; ++i) v[i] = make_ref(Vec3(-1), Vec3(-2), 0xDEAD0000u + i);
-    return v;
+// The canonical partition written out plainly: mid = begin + the number of
+// records going left; the k-th record of [begin, mid) going right swaps with
+// the k-th record of [mid, end) going left.
+template <class Pred>
+std::vector<PrimRef> reference_partition(std::vector<PrimRef> refs, uint32_t begin, uint32_t end, Pred goes_left) {
+    uint32_t mid = begin;
+    for (uint32_t i = begin; i < end; ++i) mid += goes_left(refs[i]);
+    std::vector<uint32_t> right_in_left, left_in_right;
+    for (uint32_t i = begin; i < mid; ++i)
+        if (!goes_left(refs[i])) right_in_left.push_back(i);
+    for (uint32_t i = mid; i < end; ++i)
+        if (goes_left(refs[i])) left_in_right.push_back(i);
+    EXPECT_EQ(right_in_left.size(), left_in_right.size());
+    for (size_t k = 0; k < right_in_left.size(); ++k) std::swap(refs[right_in_left[k]], refs[left_in_right[k]]);
+    return refs;
 }
 
 }  // namespace
 
-TEST(KernelPartition, IsTheStablePartition) {
-    const uint32_t n = 300, begin = 17, end = 271;
+TEST(KernelPartition, SwapsTheMisplacedPairsInOrder) {
+    const uint32_t n = 300;
     const std::vector<PrimRef> input = random_refs(n, 11);
-    const NodeTask t = task_of(input, begin, end);
-    for (uint32_t nb : {4u, 16u}) {
-        const BinMapper m = BinMapper::make(t.cbounds, nb);
-        for (int axis = 0; axis < 3; ++axis) {
-            ASSERT_TRUE(m.valid[axis]);
-            for (uint32_t idx = 1; idx < nb; ++idx) {
-                const Split s = make_split(input, begin, end, m, axis, idx);
-                const std::vector<PrimRef> src = input;
-                std::vector<PrimRef> dst = sentinels(n);
-                const PartitionResult p = canopy::partition(src.data(), dst.data(), begin, end, m, s);
+    // Ranges of one block, of several, and not aligned to 64.
+    for (auto [begin, end] : {std::pair<uint32_t, uint32_t>{17, 271}, {0, 64}, {3, 50}, {64, 300}, {1, 129}}) {
+        const NodeTask t = task_of(input, begin, end);
+        for (uint32_t nb : {4u, 16u}) {
+            const BinMapper m = BinMapper::make(t.cbounds, nb);
+            for (int axis = 0; axis < 3; ++axis) {
+                ASSERT_TRUE(m.valid[axis]);
+                for (uint32_t idx = 1; idx < nb; ++idx) {
+                    const Split s = make_split(input, begin, end, m, axis, idx);
+                    std::vector<PrimRef> refs = input;
+                    const PartitionResult p = canopy::partition(refs.data(), begin, end, m, s);
+                    const auto pred = [&](const PrimRef& r) { return left_of(r, m, s); };
+                    const std::vector<PrimRef> expected = reference_partition(input, begin, end, pred);
+                    EXPECT_EQ(p.mid, begin + s.left_count);
+                    // The predicate agrees with the kernel's own.
+                    for (const PrimRef& r : input) ASSERT_EQ(canopy::goes_left(r, m, s), pred(r));
+                    // Bit for bit, outside the range too (nothing written there).
+                    ASSERT_TRUE(same_records(refs, expected))
+                        << "range " << begin << ".." << end << " axis " << axis << " index " << idx;
+                    for (uint32_t i = begin; i < end; ++i) EXPECT_EQ(pred(refs[i]), i < p.mid) << i;
 
-                // std::stable_partition of a copy with the same predicate.
-                std::vector<PrimRef> expected = input;
-                const auto mid = std::stable_partition(expected.begin() + begin, expected.begin() + end,
-                                                       [&](const PrimRef& r) { return left_of(r, m, s); });
-                EXPECT_EQ(p.mid, uint32_t(mid - expected.begin()));
-                EXPECT_EQ(p.mid, begin + s.left_count);
-                // The predicate agrees with the kernel's own.
-                for (const PrimRef& r : input) ASSERT_EQ(canopy::goes_left(r, m, s), left_of(r, m, s));
-                // Bit for bit inside the range; the source is untouched and
-                // nothing outside the range of the destination is written.
-                ASSERT_EQ(0, std::memcmp(dst.data() + begin, expected.data() + begin,
-                                         (end - begin) * sizeof(PrimRef)))
-                    << "axis " << axis << " index " << idx;
-                const std::vector<PrimRef> fresh = sentinels(n);
-                EXPECT_EQ(0, std::memcmp(dst.data(), fresh.data(), begin * sizeof(PrimRef)));
-                EXPECT_EQ(0, std::memcmp(dst.data() + end, fresh.data() + end, (n - end) * sizeof(PrimRef)));
-                EXPECT_TRUE(same_records(src, input));
-
-                const Bounds l = bounds_of(dst.data(), begin, p.mid);
-                const Bounds r = bounds_of(dst.data(), p.mid, end);
-                EXPECT_EQ(p.left_bounds, l.bounds);
-                EXPECT_EQ(p.left_cbounds, l.cbounds);
-                EXPECT_EQ(p.right_bounds, r.bounds);
-                EXPECT_EQ(p.right_cbounds, r.cbounds);
+                    const Bounds l = bounds_of(refs.data(), begin, p.mid);
+                    const Bounds r = bounds_of(refs.data(), p.mid, end);
+                    EXPECT_EQ(p.left_bounds, l.bounds);
+                    EXPECT_EQ(p.left_cbounds, l.cbounds);
+                    EXPECT_EQ(p.right_bounds, r.bounds);
+                    EXPECT_EQ(p.right_cbounds, r.cbounds);
+                }
             }
         }
     }
@@ -557,7 +561,8 @@ TEST(KernelPartition, IsTheStablePartition) {
 
 TEST(KernelPartition, HandMadeOrder) {
     // Centroids x: 5 0 9 1 8 2 (ids 0..5); with 2 bins over [0, 9] the ones
-    // below 4.55 go left.
+    // below 4.5 go left: ids 1, 3, 5, so mid = 3. In [0, 3), ids 0 and 2 go
+    // right; in [3, 6), ids 3 and 5 go left: 0 swaps with 3, 2 with 5.
     std::vector<PrimRef> refs;
     const float xs[] = {5, 0, 9, 1, 8, 2};
     for (uint32_t i = 0; i < 6; ++i) refs.push_back(make_ref(Vec3(xs[i], 0, 0), Vec3(xs[i], 1, 1), i));
@@ -565,11 +570,10 @@ TEST(KernelPartition, HandMadeOrder) {
     const BinMapper m = BinMapper::make(t.cbounds, 2);
     const Split s = make_split(refs, 0, 6, m, 0, 1);
     EXPECT_EQ(s.left_count, 3u);
-    std::vector<PrimRef> dst(6);
-    const PartitionResult p = canopy::partition(refs.data(), dst.data(), 0, 6, m, s);
+    const PartitionResult p = canopy::partition(refs.data(), 0, 6, m, s);
     EXPECT_EQ(p.mid, 3u);
-    const uint32_t expected_ids[] = {1, 3, 5, 0, 2, 4};
-    for (uint32_t i = 0; i < 6; ++i) EXPECT_EQ(dst[i].id, expected_ids[i]) << i;
+    const uint32_t expected_ids[] = {3, 1, 5, 0, 4, 2};
+    for (uint32_t i = 0; i < 6; ++i) EXPECT_EQ(refs[i].id, expected_ids[i]) << i;
     EXPECT_EQ(p.left_bounds, (Box{Vec3(0, 0, 0), Vec3(2, 1, 1)}));
     EXPECT_EQ(p.right_bounds, (Box{Vec3(5, 0, 0), Vec3(9, 1, 1)}));
     EXPECT_EQ(p.left_cbounds, (Box{Vec3(0, 0.5f, 0.5f), Vec3(2, 0.5f, 0.5f)}));
@@ -589,10 +593,10 @@ TEST(KernelPartition, EvaluatedSplitPartitionsAsCounted) {
         uint32_t from_bins = 0;
         for (uint32_t k = 0; k < s.index; ++k) from_bins += bins->count(s.axis, k);
         EXPECT_EQ(s.left_count, from_bins);
-        std::vector<PrimRef> dst(1000);
-        const PartitionResult p = canopy::partition(input.data(), dst.data(), 0, 1000, m, s);
+        std::vector<PrimRef> refs = input;
+        const PartitionResult p = canopy::partition(refs.data(), 0, 1000, m, s);
         EXPECT_EQ(p.mid, s.left_count);
-        for (uint32_t i = 0; i < 1000; ++i) EXPECT_EQ(left_of(dst[i], m, s), i < p.mid) << i;
+        for (uint32_t i = 0; i < 1000; ++i) EXPECT_EQ(left_of(refs[i], m, s), i < p.mid) << i;
     }
 }
 
@@ -601,40 +605,42 @@ namespace {
 // A block size of the order the team-parallel node uses.
 constexpr uint32_t kBlock = 16384;
 
-// The blocked partition a team-parallel node runs over consecutive
-// `ranges`, into `out`: each range's left count read from its own bins (size
-// classes for a size split), prefix sums, partition_into() per range.
-// Returns the merged bounds, mid = the left total.
-PartitionResult blocked_partition(const std::vector<PrimRef>& input,
+// The partition as a team-parallel node runs it, on `refs`: mark_sides() on
+// consecutive `ranges` (starting at multiples of 64 from the first), in a
+// shuffled order; plan_swaps() with `per_piece`; the pieces swapped in a
+// shuffled order. Returns the merged bounds, mid = the node's mid.
+PartitionResult blocked_partition(std::vector<PrimRef>& refs,
                                   const std::vector<std::pair<uint32_t, uint32_t>>& ranges, const BinMapper& m,
-                                  const Split& s, std::vector<PrimRef>& out) {
-    std::vector<uint32_t> lefts;
-    uint32_t total_left = 0;
-    for (const auto& [b, e] : ranges) {
-        if (s.by_size()) {
-            canopy::SizeCuts cuts;
-            cuts.half = cuts.quarter = s.size_cut;
-            canopy::SizeBins sizes;
-            canopy::bin_sizes(input.data(), b, e, cuts, sizes);
-            lefts.push_back(canopy::left_count(sizes, cuts, s));
-        } else {
-            lefts.push_back(canopy::left_count(*binned(input, b, e, m), s));
-        }
-        total_left += lefts.back();
-    }
+                                  const Split& s, uint32_t per_piece, uint32_t seed = 1) {
+    const uint32_t begin = ranges.front().first, end = ranges.back().second;
+    std::vector<uint64_t> sides((end - begin + 63) / 64, 0x5555555555555555u);  // garbage: all overwritten
+    std::vector<size_t> order(ranges.size());
+    std::iota(order.begin(), order.end(), size_t(0));
+    std::mt19937 rng(seed);
+    std::shuffle(order.begin(), order.end(), rng);
     PartitionResult merged;
-    uint32_t left_at = ranges.front().first, right_at = ranges.front().first + total_left;
-    for (size_t k = 0; k < ranges.size(); ++k) {
-        const auto [b, e] = ranges[k];
-        const PartitionResult piece =
-            canopy::partition_into(input.data(), b, e, m, s, out.data() + left_at, out.data() + right_at);
-        EXPECT_EQ(piece.mid, lefts[k]) << "range " << k;
-        merged.merge(piece);
-        left_at += lefts[k];
-        right_at += (e - b) - lefts[k];
+    for (size_t k : order) {
+        EXPECT_EQ((ranges[k].first - begin) % 64, 0u);
+        merged.merge(canopy::mark_sides(refs.data(), ranges[k].first, ranges[k].second, begin, m, s, sides.data()));
     }
-    EXPECT_EQ(right_at, ranges.back().second);
-    merged.mid = total_left;
+    uint32_t right_in_left = 0;  // records to swap out of the left part
+    for (uint32_t i = begin; i < begin + s.left_count; ++i) right_in_left += !canopy::goes_left(refs[i], m, s);
+    std::vector<canopy::SwapPiece> pieces;
+    canopy::plan_swaps(sides.data(), begin, begin + s.left_count, per_piece, pieces);
+    uint32_t pairs = 0;
+    for (const auto& p : pieces) {
+        EXPECT_GT(p.count, 0u);
+        EXPECT_LE(p.count, per_piece);
+        pairs += p.count;
+    }
+    std::shuffle(pieces.begin(), pieces.end(), rng);
+    for (const auto& p : pieces) canopy::swap_misplaced(refs.data(), sides.data(), begin, p);
+    // Every misplaced pair was in some piece: afterwards all sides are right.
+    uint32_t misplaced = 0;
+    for (uint32_t i = begin; i < begin + s.left_count; ++i) misplaced += !canopy::goes_left(refs[i], m, s);
+    EXPECT_EQ(misplaced, 0u);
+    EXPECT_EQ(pairs, right_in_left);
+    merged.mid = begin + s.left_count;
     return merged;
 }
 
@@ -643,16 +649,18 @@ PartitionResult blocked_partition(const std::vector<PrimRef>& input,
 TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
     struct Case {
         uint32_t n, begin, end;
-        std::vector<uint32_t> blocks;  // cycled
+        std::vector<uint32_t> blocks;  // cycled; multiples of 64
+        uint32_t per_piece;
     };
     const uint32_t big = 2 * kBlock + 123;
     const Case cases[] = {
-        {400, 0, 400, {1, 7, 0, 64, 13, 100}},
-        {400, 33, 377, {5}},
-        {400, 10, 11, {1}},
-        {400, 50, 350, {1000}},
-        {big, 0, big, {kBlock}},
-        {big, 1000, big - 7, {kBlock, 3, kBlock / 2}},
+        {400, 0, 400, {64, 128, 192}, 1},
+        {400, 33, 377, {64}, 5},
+        {400, 10, 12, {64}, 1},
+        {400, 50, 350, {1024}, 1000},
+        {big, 0, big, {kBlock}, 4096},
+        {big, 1000, big - 7, {kBlock, 64, kBlock / 2}, 1000},
+        {big, 3, big, {kBlock}, 1u << 30},
     };
     for (const Case& c : cases) {
         const std::vector<PrimRef> input = random_refs(c.n, 21 + c.begin);
@@ -663,20 +671,18 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
             for (uint32_t idx : {1u, 5u, 8u, 15u}) {
                 const Split s = make_split(input, c.begin, c.end, m, axis, idx);
                 // Reference: partition().
-                std::vector<PrimRef> ref = sentinels(c.n);
-                const PartitionResult p = canopy::partition(input.data(), ref.data(), c.begin, c.end, m, s);
+                std::vector<PrimRef> ref = input;
+                const PartitionResult p = canopy::partition(ref.data(), c.begin, c.end, m, s);
 
-                // Blocked: count per block, prefix sums, scatter.
                 std::vector<std::pair<uint32_t, uint32_t>> ranges;
                 for (uint32_t b = c.begin, k = 0; b < c.end; ++k) {
                     const uint32_t e = std::min(c.end, b + c.blocks[k % c.blocks.size()]);
                     ranges.push_back({b, e});
                     b = e;
                 }
-                std::vector<PrimRef> out = sentinels(c.n);
-                const PartitionResult merged = blocked_partition(input, ranges, m, s, out);
-                EXPECT_EQ(merged.mid, s.left_count);
-                EXPECT_EQ(c.begin + merged.mid, p.mid);
+                std::vector<PrimRef> out = input;
+                const PartitionResult merged = blocked_partition(out, ranges, m, s, c.per_piece, idx);
+                EXPECT_EQ(merged.mid, p.mid);
                 ASSERT_TRUE(same_records(out, ref)) << "n " << c.n << " axis " << axis << " index " << idx;
                 EXPECT_EQ(merged.left_bounds, p.left_bounds);
                 EXPECT_EQ(merged.left_cbounds, p.left_cbounds);
@@ -685,6 +691,37 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
             }
         }
     }
+}
+
+TEST(KernelPartition, PlanSwapsCutsByRank) {
+    // 130 records, mid = 70: sides by hand. Going right in [0, 70): 2, 3, 65,
+    // 69; going left in [70, 130): 70, 100, 127, 129.
+    std::vector<uint64_t> sides(3, 0);
+    const auto set = [&](uint32_t i) { sides[i / 64] |= uint64_t(1) << (i % 64); };
+    for (uint32_t i = 0; i < 70; ++i)
+        if (i != 2 && i != 3 && i != 65 && i != 69) set(i);
+    for (uint32_t i : {70u, 100u, 127u, 129u}) set(i);
+    std::vector<canopy::SwapPiece> pieces;
+    canopy::plan_swaps(sides.data(), 0, 70, 3, pieces);
+    ASSERT_EQ(pieces.size(), 2u);
+    EXPECT_EQ(pieces[0].left_at, 2u);
+    EXPECT_EQ(pieces[0].right_at, 70u);
+    EXPECT_EQ(pieces[0].count, 3u);
+    EXPECT_EQ(pieces[1].left_at, 69u);
+    EXPECT_EQ(pieces[1].right_at, 129u);
+    EXPECT_EQ(pieces[1].count, 1u);
+    // Offset node start: the same bits describe records 1000..1129.
+    canopy::plan_swaps(sides.data(), 1000, 1070, 2, pieces);
+    ASSERT_EQ(pieces.size(), 2u);
+    EXPECT_EQ(pieces[1].left_at, 1065u);
+    EXPECT_EQ(pieces[1].right_at, 1127u);
+    EXPECT_EQ(canopy::next_side(sides.data(), 1000, 1066, false), 1069u);
+    EXPECT_EQ(canopy::next_side(sides.data(), 1000, 1101, true), 1127u);
+    // Nothing misplaced: no pieces.
+    std::fill(sides.begin(), sides.end(), 0);
+    for (uint32_t i = 0; i < 70; ++i) set(i);
+    canopy::plan_swaps(sides.data(), 0, 70, 3, pieces);
+    EXPECT_TRUE(pieces.empty());
 }
 
 TEST(KernelPartition, MiddleSplitKeepsOrderAndHalves) {
@@ -719,33 +756,26 @@ TEST(KernelEmit, ChildTasks) {
     p.left_cbounds = Box{Vec3(0.5f), Vec3(0.5f)};
     p.right_bounds = Box{Vec3(2, 0, 0), Vec3(4, 1, 1)};
     p.right_cbounds = Box{Vec3(2.5f, 0.5f, 0.5f), Vec3(3.5f, 0.5f, 0.5f)};
-    for (int moved = 0; moved < 2; ++moved)
-        for (uint8_t buffer = 0; buffer < 2; ++buffer) {
-            t.buffer = buffer;
-            NodeTask c[2];
-            canopy::emit(t, p, moved != 0, c);
+    NodeTask c[2];
+    canopy::emit(t, p, c);
 
-            EXPECT_EQ(c[0].begin, 10u);
-            EXPECT_EQ(c[0].end, 17u);
-            EXPECT_EQ(c[1].begin, 17u);
-            EXPECT_EQ(c[1].end, 30u);
-            EXPECT_EQ(c[0].size() + c[1].size(), t.size());
-            EXPECT_EQ(c[0].bounds, p.left_bounds);
-            EXPECT_EQ(c[0].cbounds, p.left_cbounds);
-            EXPECT_EQ(c[1].bounds, p.right_bounds);
-            EXPECT_EQ(c[1].cbounds, p.right_cbounds);
-            for (int k = 0; k < 2; ++k) {
-                EXPECT_EQ(c[k].depth, 4u);
-                EXPECT_EQ(c[k].parent_begin, 10u);
-                // A partition moves the records to the other buffer; a
-                // middle split leaves them where they are.
-                EXPECT_EQ(c[k].buffer, moved ? 1 - buffer : buffer);
-            }
-            EXPECT_EQ(c[0].rights, 2);  // the left child keeps the parent's rights
-            EXPECT_EQ(c[1].rights, 3);
-            EXPECT_FALSE(c[0].is_right);
-            EXPECT_TRUE(c[1].is_right);
-        }
+    EXPECT_EQ(c[0].begin, 10u);
+    EXPECT_EQ(c[0].end, 17u);
+    EXPECT_EQ(c[1].begin, 17u);
+    EXPECT_EQ(c[1].end, 30u);
+    EXPECT_EQ(c[0].size() + c[1].size(), t.size());
+    EXPECT_EQ(c[0].bounds, p.left_bounds);
+    EXPECT_EQ(c[0].cbounds, p.left_cbounds);
+    EXPECT_EQ(c[1].bounds, p.right_bounds);
+    EXPECT_EQ(c[1].cbounds, p.right_cbounds);
+    for (int k = 0; k < 2; ++k) {
+        EXPECT_EQ(c[k].depth, 4u);
+        EXPECT_EQ(c[k].parent_begin, 10u);
+    }
+    EXPECT_EQ(c[0].rights, 2);  // the left child keeps the parent's rights
+    EXPECT_EQ(c[1].rights, 3);
+    EXPECT_FALSE(c[0].is_right);
+    EXPECT_TRUE(c[1].is_right);
 }
 
 // ---------------------------------------------------------------- plan
@@ -823,14 +853,13 @@ TEST(KernelPlan, SahSaysLeaf) {
 
 namespace {
 
-// Two record buffers and a permutation, as a build owns them.
+// The records and a permutation, as a build owns them.
 struct Buffers {
-    std::vector<PrimRef> a, b;
+    std::vector<PrimRef> a;
     std::vector<uint32_t> perm;
     BuildOptions opt;
-    explicit Buffers(const std::vector<PrimRef>& refs)
-        : a(refs), b(sentinels(uint32_t(refs.size()))), perm(refs.size(), ~0u) {}
-    canopy::KernelContext ctx() { return {{a.data(), b.data()}, perm.data(), &opt}; }
+    explicit Buffers(const std::vector<PrimRef>& refs) : a(refs), perm(refs.size(), ~0u) {}
+    canopy::KernelContext ctx() { return {a.data(), perm.data(), &opt, nullptr}; }
 };
 
 }  // namespace
@@ -851,13 +880,10 @@ TEST(KernelRunNode, CoincidentCentroids) {
     EXPECT_EQ(skip.coincident_nodes, 1u);
     EXPECT_EQ(skip.depth_cap_splits, 0u);
     EXPECT_TRUE(same_records(buf.a, refs));
-    EXPECT_TRUE(same_records(buf.b, sentinels(10)));
     EXPECT_EQ(children[0].begin, 0u);
     EXPECT_EQ(children[0].end, 5u);
     EXPECT_EQ(children[1].begin, 5u);
     EXPECT_EQ(children[1].end, 10u);
-    EXPECT_EQ(children[0].buffer, 0);
-    EXPECT_EQ(children[1].buffer, 0);
     EXPECT_EQ(children[0].bounds, (Box{Vec3(1, 2, 3) - Vec3(5), Vec3(1, 2, 3) + Vec3(5)}));
     EXPECT_EQ(children[1].bounds, (Box{Vec3(1, 2, 3) - Vec3(10), Vec3(1, 2, 3) + Vec3(10)}));
     EXPECT_EQ(children[0].cbounds, (Box{Vec3(1, 2, 3), Vec3(1, 2, 3)}));
@@ -880,28 +906,23 @@ TEST(KernelRunNode, CoincidentCentroids) {
     EXPECT_EQ(skip3.coincident_nodes, 0u);
     EXPECT_EQ(buf.perm[7], 7u);
 
-    // A leaf reads its ids from the buffer its task names.
-    std::reverse(buf.b.begin(), buf.b.end());
-    for (uint32_t i = 0; i < 10; ++i) buf.b[i].id = 100 + i;
-    NodeTask in_b = task_of(refs, 8, 10);
-    in_b.buffer = 1;
+    // A leaf writes the ids the records carry, wherever they are.
+    for (uint32_t i = 0; i < 10; ++i) buf.a[i].id = 100 + i;
     SkipCounts skip4;
-    EXPECT_FALSE(canopy::run_node(ctx, in_b, children, *bins, skip4));
+    EXPECT_FALSE(canopy::run_node(ctx, task_of(refs, 8, 10), children, *bins, skip4));
     EXPECT_EQ(buf.perm[8], 108u);
     EXPECT_EQ(buf.perm[9], 109u);
 }
 
 TEST(KernelRunNode, SahSplitMatchesTheSteps) {
     const std::vector<PrimRef> input = random_refs(200, 77);
-    for (uint8_t from = 0; from < 2; ++from) {
+    {
         Buffers buf(input);
-        if (from == 1) std::swap(buf.a, buf.b);  // the records start in buffer 1
         const canopy::KernelContext ctx = buf.ctx();
         auto bins = std::make_unique<BinSet>();
         SkipCounts skip;
         NodeTask t = task_of(input, 20, 180, 2);
         t.rights = 1;
-        t.buffer = from;
         NodeTask children[2];
         ASSERT_TRUE(canopy::run_node(ctx, t, children, *bins, skip));
 
@@ -910,12 +931,10 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
         const auto b = binned(input, 20, 180, m);
         const Split s = canopy::evaluate(*b, m, t.bounds, buf.opt);
         ASSERT_TRUE(s.found());
-        std::vector<PrimRef> expected = sentinels(200);
-        const PartitionResult p = canopy::partition(input.data(), expected.data(), 20, 180, m, s);
-        const std::vector<PrimRef>& dst = from == 0 ? buf.b : buf.a;
-        const std::vector<PrimRef>& src = from == 0 ? buf.a : buf.b;
-        EXPECT_TRUE(same_records(dst, expected));
-        EXPECT_TRUE(same_records(src, input));
+        std::vector<PrimRef> expected = input;
+        const PartitionResult p = canopy::partition(expected.data(), 20, 180, m, s);
+        EXPECT_TRUE(same_records(buf.a, expected));
+        EXPECT_FALSE(same_records(buf.a, input));
         EXPECT_EQ(children[0].end, p.mid);
         EXPECT_EQ(children[0].begin, 20u);
         EXPECT_EQ(children[1].end, 180u);
@@ -925,8 +944,6 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
         EXPECT_EQ(children[0].rights, 1);
         EXPECT_EQ(children[1].rights, 2);
         EXPECT_EQ(children[1].parent_begin, 20u);
-        EXPECT_EQ(children[0].buffer, 1 - from);
-        EXPECT_EQ(children[1].buffer, 1 - from);
         EXPECT_EQ(skip.coincident_nodes, 0u);
         EXPECT_EQ(skip.axes_not_binned, 0u);
     }
@@ -941,9 +958,7 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
     ASSERT_TRUE(canopy::run_node(ctx, deep, children, *bins, skip));
     EXPECT_EQ(skip.depth_cap_splits, 1u);
     EXPECT_EQ(children[0].end, 100u);
-    EXPECT_EQ(children[0].buffer, 0);
     EXPECT_TRUE(same_records(buf.a, input));
-    EXPECT_TRUE(same_records(buf.b, sentinels(200)));
 }
 
 // ---------------------------------------------------------------- size split
@@ -1075,24 +1090,18 @@ TEST(KernelSizeSplit, RoomIsSplitBySize) {
     for (const PrimRef& r : refs) (r.id >= 100 ? walls : small).extend(Box{r.lo, r.hi});
     EXPECT_NEAR(s.cost, 1.0 + (small.half_area() * 40 + walls.half_area() * 4) / 12.0, 1e-9);
 
-    // run_node takes it: small ones left in order, walls right in order.
+    // run_node takes it: the small ones left, the walls right, by the
+    // canonical pair swaps.
     NodeTask children[2];
     ASSERT_TRUE(canopy::run_node(ctx, t, children, *bins, skip));
     EXPECT_EQ(skip.size_splits, 1u);
     EXPECT_EQ(children[0].size(), 40u);
     EXPECT_EQ(children[1].size(), 4u);
-    uint32_t last_small = 0;
-    for (uint32_t i = 0; i < 40; ++i) {
-        EXPECT_LT(buf.b[i].id, 100u);
-        if (i) {
-            EXPECT_GT(buf.b[i].id, last_small);
-        }
-        last_small = buf.b[i].id;
-    }
-    for (uint32_t k = 0; k < 4; ++k) EXPECT_EQ(buf.b[40 + k].id, 100u + k);
+    EXPECT_TRUE(same_records(buf.a, reference_partition(refs, 0, n, [&](const PrimRef& r) { return r.area < s.size_cut; })));
+    for (uint32_t i = 0; i < 44; ++i) EXPECT_EQ(buf.a[i].id < 100u, i < 40) << i;
     EXPECT_EQ(children[0].bounds, small);
     EXPECT_EQ(children[1].bounds, walls);
-    EXPECT_EQ(children[0].max_area, max_area(buf.b, 0, 40));
+    EXPECT_EQ(children[0].max_area, max_area(buf.a, 0, 40));
     EXPECT_EQ(children[1].max_area, 4.0f);
 
     // Without the areas (max_area 0) the same node gets the plane.
@@ -1133,7 +1142,7 @@ TEST(KernelSizeSplit, APlaneThatMakesTheSameSetsWins) {
     EXPECT_EQ(s.axis, 0);
 }
 
-TEST(KernelSizeSplit, PartitionIsTheStablePartitionByArea) {
+TEST(KernelSizeSplit, PartitionByAreaSwapsTheMisplacedPairs) {
     const uint32_t n = 2 * kBlock + 77, begin = 5, end = n - 9;
     const std::vector<PrimRef> input = sized_refs(n, 31);
     const NodeTask t = task_of(input, begin, end);
@@ -1145,29 +1154,28 @@ TEST(KernelSizeSplit, PartitionIsTheStablePartitionByArea) {
         for (uint32_t i = begin; i < end; ++i) s.left_count += input[i].area < cut;
         ASSERT_GT(s.left_count, 0u);
         ASSERT_LT(s.left_count, end - begin);
-        std::vector<PrimRef> dst = sentinels(n);
-        const PartitionResult p = canopy::partition(input.data(), dst.data(), begin, end, m, s);
-        std::vector<PrimRef> expected = input;
-        std::stable_partition(expected.begin() + begin, expected.begin() + end,
-                              [&](const PrimRef& r) { return r.area < cut; });
+        std::vector<PrimRef> refs = input;
+        const PartitionResult p = canopy::partition(refs.data(), begin, end, m, s);
+        const std::vector<PrimRef> expected =
+            reference_partition(input, begin, end, [&](const PrimRef& r) { return r.area < cut; });
         EXPECT_EQ(p.mid, begin + s.left_count);
-        ASSERT_EQ(0, std::memcmp(dst.data() + begin, expected.data() + begin, (end - begin) * sizeof(PrimRef)));
+        ASSERT_TRUE(same_records(refs, expected));
         for (const PrimRef& r : input) ASSERT_EQ(canopy::goes_left(r, m, s), r.area < cut);
-        const Bounds l = bounds_of(dst.data(), begin, p.mid), r = bounds_of(dst.data(), p.mid, end);
+        const Bounds l = bounds_of(refs.data(), begin, p.mid), r = bounds_of(refs.data(), p.mid, end);
         EXPECT_EQ(p.left_bounds, l.bounds);
         EXPECT_EQ(p.left_cbounds, l.cbounds);
         EXPECT_EQ(p.right_bounds, r.bounds);
         EXPECT_EQ(p.right_cbounds, r.cbounds);
-        EXPECT_EQ(p.left_max_area, max_area(dst, begin, p.mid));
-        EXPECT_EQ(p.right_max_area, max_area(dst, p.mid, end));
+        EXPECT_EQ(p.left_max_area, max_area(refs, begin, p.mid));
+        EXPECT_EQ(p.right_max_area, max_area(refs, p.mid, end));
 
         // Blocked, as the parallel node does it: the same records and bounds.
         std::vector<std::pair<uint32_t, uint32_t>> ranges;
         for (uint32_t b0 = begin; b0 < end; b0 += kBlock) ranges.push_back({b0, std::min(end, b0 + kBlock)});
-        std::vector<PrimRef> out = sentinels(n);
-        const PartitionResult merged = blocked_partition(input, ranges, m, s, out);
-        EXPECT_EQ(merged.mid, s.left_count);
-        EXPECT_TRUE(same_records(out, dst));
+        std::vector<PrimRef> out = input;
+        const PartitionResult merged = blocked_partition(out, ranges, m, s, 777);
+        EXPECT_EQ(merged.mid, p.mid);
+        EXPECT_TRUE(same_records(out, refs));
         EXPECT_EQ(merged.left_bounds, p.left_bounds);
         EXPECT_EQ(merged.right_cbounds, p.right_cbounds);
         EXPECT_EQ(merged.left_max_area, p.left_max_area);
@@ -1176,26 +1184,26 @@ TEST(KernelSizeSplit, PartitionIsTheStablePartitionByArea) {
 }
 
 TEST(KernelSizeSplit, ChildrenCarryTheirLargestArea) {
-    // Plane partitions, blocked counts and middle splits all report each
+    // Plane partitions, blocked marks and middle splits all report each
     // side's largest record area (what SizeCuts::applies reads).
     const std::vector<PrimRef> input = sized_refs(500, 41);
     const NodeTask t = task_of(input, 0, 500);
     const BinMapper m = BinMapper::make(t.cbounds, 16);
     const Split s = make_split(input, 0, 500, m, 1, 7);
-    std::vector<PrimRef> dst(500);
-    const PartitionResult p = canopy::partition(input.data(), dst.data(), 0, 500, m, s);
-    EXPECT_EQ(p.left_max_area, max_area(dst, 0, p.mid));
-    EXPECT_EQ(p.right_max_area, max_area(dst, p.mid, 500));
+    std::vector<PrimRef> refs = input;
+    const PartitionResult p = canopy::partition(refs.data(), 0, 500, m, s);
+    EXPECT_EQ(p.left_max_area, max_area(refs, 0, p.mid));
+    EXPECT_EQ(p.right_max_area, max_area(refs, p.mid, 500));
     EXPECT_GT(p.left_max_area, 0.0f);
-    std::vector<PrimRef> out(500);
-    const PartitionResult c = blocked_partition(input, {{0, 200}, {200, 500}}, m, s, out);
+    std::vector<PrimRef> out = input;
+    const PartitionResult c = blocked_partition(out, {{0, 192}, {192, 500}}, m, s, 10);
     EXPECT_EQ(c.left_max_area, p.left_max_area);
     EXPECT_EQ(c.right_max_area, p.right_max_area);
     const PartitionResult mid = canopy::middle_split(input.data(), 0, 500);
     EXPECT_EQ(mid.left_max_area, max_area(input, 0, 250));
     EXPECT_EQ(mid.right_max_area, max_area(input, 250, 500));
     NodeTask kids[2];
-    canopy::emit(t, p, true, kids);
+    canopy::emit(t, p, kids);
     EXPECT_EQ(kids[0].max_area, p.left_max_area);
     EXPECT_EQ(kids[1].max_area, p.right_max_area);
 }

@@ -60,9 +60,11 @@ TEST(Trace, SpansNameTheirCanonicalNodes) {
         EXPECT_GT(kinds[TraceSpan::Parallel], 0);
         for (const TraceSpan::Kind k : {TraceSpan::Start, TraceSpan::Bin, TraceSpan::Evaluate, TraceSpan::Finish})
             EXPECT_EQ(kinds[k], kinds[TraceSpan::Parallel]) << TraceSpan::kKindNames[k];
-        // A SAH split scatters, a middle split only counts its halves' bounds.
-        EXPECT_EQ(kinds[TraceSpan::Scatter] + kinds[TraceSpan::Count], kinds[TraceSpan::Parallel]);
-        EXPECT_GT(kinds[TraceSpan::Scatter], 0);
+        // A SAH split marks sides and swaps, a middle split only counts its
+        // halves' bounds.
+        EXPECT_EQ(kinds[TraceSpan::Mark], kinds[TraceSpan::Swap]);
+        EXPECT_EQ(kinds[TraceSpan::Mark] + kinds[TraceSpan::Count], kinds[TraceSpan::Parallel]);
+        EXPECT_GT(kinds[TraceSpan::Mark], 0);
     }
 }
 
