@@ -27,9 +27,12 @@ private:
     static void build_subtree(BuildState& st) {
         std::vector<Node>& nodes = st.bvh.nodes;
         nodes.clear();
-        // Typical trees have 0.9 to 1.1 nodes per primitive (leaves of up to
-        // 4); a tree that needs more grows the array once.
-        reserve_on_huge_pages(nodes, size_t(st.n) + st.n / 8 + 64);
+        // Trees of meshes have 0.97 to 1.09 nodes per primitive with leaves
+        // of up to 4 (the shared scenes, the generated sphere and stadium);
+        // a tree that needs more than 1.1 grows the array once (1M random
+        // small triangles: 1.86). 1.1 keeps a build's peak below 72 bytes
+        // per primitive: records 32, permutation 4, nodes 35.2.
+        reserve_on_huge_pages(nodes, size_t(st.n) + st.n / 10 + 64);
         auto bins = std::make_unique<BinSet>();
         build_depth_first(st.context(), st.root, nodes, *bins, st.stats.skipped, 0);
     }
