@@ -80,6 +80,17 @@ Bounds bounds_of(const PrimRef* refs, uint32_t begin, uint32_t end) {
     return b;
 }
 
+// The child bounds a partition reported are those of refs[begin, p.mid)
+// and refs[p.mid, end).
+void expect_child_bounds(const PartitionResult& p, const PrimRef* refs, uint32_t begin, uint32_t end) {
+    const Bounds l = bounds_of(refs, begin, p.mid);
+    const Bounds r = bounds_of(refs, p.mid, end);
+    EXPECT_EQ(p.left_bounds, l.bounds);
+    EXPECT_EQ(p.left_cbounds, l.cbounds);
+    EXPECT_EQ(p.right_bounds, r.bounds);
+    EXPECT_EQ(p.right_cbounds, r.cbounds);
+}
+
 NodeTask task_of(const std::vector<PrimRef>& refs, uint32_t begin, uint32_t end, uint32_t depth = 0) {
     NodeTask t;
     t.begin = begin;
@@ -546,13 +557,7 @@ TEST(KernelPartition, SwapsTheMisplacedPairsInOrder) {
                     ASSERT_TRUE(same_records(refs, expected))
                         << "range " << begin << ".." << end << " axis " << axis << " index " << idx;
                     for (uint32_t i = begin; i < end; ++i) EXPECT_EQ(pred(refs[i]), i < p.mid) << i;
-
-                    const Bounds l = bounds_of(refs.data(), begin, p.mid);
-                    const Bounds r = bounds_of(refs.data(), p.mid, end);
-                    EXPECT_EQ(p.left_bounds, l.bounds);
-                    EXPECT_EQ(p.left_cbounds, l.cbounds);
-                    EXPECT_EQ(p.right_bounds, r.bounds);
-                    EXPECT_EQ(p.right_cbounds, r.cbounds);
+                    expect_child_bounds(p, refs.data(), begin, end);
                 }
             }
         }
@@ -731,12 +736,7 @@ TEST(KernelPartition, MiddleSplitKeepsOrderAndHalves) {
         const PartitionResult p = canopy::middle_split(refs.data(), b, e);
         EXPECT_EQ(p.mid, b + (e - b) / 2);
         EXPECT_TRUE(same_records(refs, before));
-        const Bounds l = bounds_of(refs.data(), b, p.mid);
-        const Bounds r = bounds_of(refs.data(), p.mid, e);
-        EXPECT_EQ(p.left_bounds, l.bounds);
-        EXPECT_EQ(p.left_cbounds, l.cbounds);
-        EXPECT_EQ(p.right_bounds, r.bounds);
-        EXPECT_EQ(p.right_cbounds, r.cbounds);
+        expect_child_bounds(p, refs.data(), b, e);
     }
 }
 
@@ -1161,11 +1161,7 @@ TEST(KernelSizeSplit, PartitionByAreaSwapsTheMisplacedPairs) {
         EXPECT_EQ(p.mid, begin + s.left_count);
         ASSERT_TRUE(same_records(refs, expected));
         for (const PrimRef& r : input) ASSERT_EQ(canopy::goes_left(r, m, s), r.area < cut);
-        const Bounds l = bounds_of(refs.data(), begin, p.mid), r = bounds_of(refs.data(), p.mid, end);
-        EXPECT_EQ(p.left_bounds, l.bounds);
-        EXPECT_EQ(p.left_cbounds, l.cbounds);
-        EXPECT_EQ(p.right_bounds, r.bounds);
-        EXPECT_EQ(p.right_cbounds, r.cbounds);
+        expect_child_bounds(p, refs.data(), begin, end);
         EXPECT_EQ(p.left_max_area, max_area(refs, begin, p.mid));
         EXPECT_EQ(p.right_max_area, max_area(refs, p.mid, end));
 
