@@ -564,6 +564,59 @@ TEST(KernelPartition, SwapsTheMisplacedPairsInOrder) {
     }
 }
 
+TEST(KernelPartition, ThresholdSideTestMatchesTheBinIndex) {
+    // split_threshold(): the smallest float whose bin index on the axis is
+    // at least k; the side test by threshold equals the one by index, for
+    // centroids around every threshold and random ones, over boxes of
+    // ordinary, tiny (prescaled), huge and far-from-origin extents.
+    const Box boxes[] = {
+        {Vec3(0, 0, 0), Vec3(1, 2, 3)},
+        {Vec3(-5, 7, 1e6f), Vec3(3, 7.5f, 1e6f + 1)},
+        {Vec3(1e-30f, -2e-30f, 0), Vec3(4e-30f, 1e-30f, 1e-38f)},
+        {Vec3(-3e38f, -1e38f, 0), Vec3(3e38f, 1e38f, 3e38f)},
+        {Vec3(0.1f, 0.2f, 0.3f), Vec3(0.1f + 1e-6f, 0.2f + 1e-5f, 0.3f + 1e-4f)},
+    };
+    std::mt19937 rng(5);
+    const auto below = [](float f) { return std::nextafter(f, -FLT_MAX); };
+    const auto above = [](float f) { return std::nextafter(f, FLT_MAX); };
+    int checked = 0;
+    for (const Box& box : boxes) {
+        for (uint32_t nb : {2u, 4u, 16u, 32u, 256u}) {
+            const BinMapper m = BinMapper::make(box, nb);
+            for (int axis = 0; axis < 3; ++axis) {
+                if (!m.valid[axis]) continue;
+                for (uint32_t k = 1; k < nb; ++k) {
+                    Split s;
+                    s.axis = axis;
+                    s.index = k;
+                    const float t = canopy::split_threshold(m, axis, k);
+                    Vec3 at = box.lo;
+                    at[axis] = t;
+                    Vec3 before = box.lo;
+                    before[axis] = below(t);
+                    ASSERT_GE(bin_index(m, at, axis), k) << "axis " << axis << " k " << k;
+                    ASSERT_LT(bin_index(m, before, axis), k) << "axis " << axis << " k " << k;
+                    const canopy::SideTest by_threshold(m, s);
+                    const canopy::SideIndexTest by_index(m, s);
+                    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+                    for (int i = 0; i < 40; ++i) {
+                        Vec3 c = box.lo;
+                        const float f = u(rng);
+                        c[axis] = i < 6 ? std::array<float, 6>{below(below(t)), below(t), t, above(t), above(above(t)),
+                                                               box.hi[axis]}[i]
+                                        : box.lo[axis] * (1.0f - f) + box.hi[axis] * f;
+                        const __m128 c4 = canopy::simd::vec(c);
+                        ASSERT_EQ(by_threshold.left(c4, c4), by_index.left(c4, c4))
+                            << "axis " << axis << " k " << k << " c " << c[axis] << " t " << t;
+                        ++checked;
+                    }
+                }
+            }
+        }
+    }
+    EXPECT_GT(checked, 10000);
+}
+
 TEST(KernelPartition, HandMadeOrder) {
     // Centroids x: 5 0 9 1 8 2 (ids 0..5); with 2 bins over [0, 9] the ones
     // below 4.5 go left: ids 1, 3, 5, so mid = 3. In [0, 3), ids 0 and 2 go
