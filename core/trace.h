@@ -4,7 +4,7 @@
 // A span is a node task as the scheduler ran it: a node processed on its own
 // ("task"), a whole subtree run inline below the task cutoff ("inline"), or
 // a big node processed by the whole team ("parallel", with a span for each
-// of its phases: start, bin, evaluate, scatter or, for a middle split,
+// of its phases: start, bin, evaluate, mark and swap or, for a middle split,
 // count, and finish). Tracing is off unless a TraceLog is passed to the
 // build; when off, the only cost is one pointer test per scheduled task,
 // outside every per-primitive loop.
