@@ -21,8 +21,8 @@
 #include <bit>
 #include <cstdint>
 #include <cstring>
-#include <vector>
 #include <limits>
+#include <vector>
 
 #include <emmintrin.h>
 
@@ -856,12 +856,14 @@ struct SwapPiece {
     uint32_t left_at = 0, right_at = 0, count = 0;
 };
 
+// Word w of the side bits with the bits equal to `want` set.
+inline uint64_t side_word(const uint64_t* sides, uint32_t w, bool want) { return want ? sides[w] : ~sides[w]; }
+
 // The first position at or after `at` whose side bit is `want` (one exists).
 inline uint32_t next_side(const uint64_t* sides, uint32_t node_begin, uint32_t at, bool want) {
-    const auto word = [&](uint32_t w) { return want ? sides[w] : ~sides[w]; };
     uint32_t w = (at - node_begin) / 64;
-    uint64_t bits = word(w) & (~uint64_t(0) << ((at - node_begin) % 64));
-    while (!bits) bits = word(++w);
+    uint64_t bits = side_word(sides, w, want) & (~uint64_t(0) << ((at - node_begin) % 64));
+    while (!bits) bits = side_word(sides, ++w, want);
     return node_begin + w * 64 + uint32_t(std::countr_zero(bits));
 }
 
@@ -871,7 +873,8 @@ inline void plan_swaps(const uint64_t* sides, uint32_t begin, uint32_t mid, uint
                        std::vector<SwapPiece>& pieces) {
     pieces.clear();
     // Finds the positions of increasing ranks among one part's `want` bits,
-    // from word w on (bits of word w below `first` masked off).
+    // from word w on (first_mask: the bits of the part's first word that
+    // belong to it).
     struct Walk {
         const uint64_t* sides;
         uint32_t begin;
@@ -880,7 +883,7 @@ inline void plan_swaps(const uint64_t* sides, uint32_t begin, uint32_t mid, uint
         uint64_t first_mask;
         uint32_t seen = 0;  // wanted bits before word w
         uint64_t bits(uint32_t k) const {
-            const uint64_t v = want ? sides[k] : ~sides[k];
+            const uint64_t v = side_word(sides, k, want);
             return k == first_word ? v & first_mask : v;
         }
         uint32_t find(uint32_t rank) {
