@@ -463,6 +463,38 @@ TEST(KernelEvaluate, TiesGoToLowestAxisThenLowestIndex) {
     EXPECT_EQ(s.index, 3u);
 }
 
+TEST(KernelEvaluate, FourBinSweepsMatchTheGeneralOnes) {
+    // evaluate() runs nodes of 4 bins through unrolled sweeps; they must pick
+    // what the general sweeps pick, cost included, on nodes with empty bins,
+    // flat axes, coincident centroids and ties.
+    const BuildOptions opt;
+    uint32_t found = 0;
+    for (uint32_t seed = 0; seed < 400; ++seed) {
+        const uint32_t n = 2 + seed % 15;
+        std::vector<PrimRef> refs = random_refs(n, 7000 + seed, seed % 2 ? 10.0f : 1e-3f, 1.0f);
+        if (seed % 4 == 1)
+            for (auto& r : refs) r.hi.y = r.lo.y = -2.0f;
+        if (seed % 6 == 2) refs[1] = make_ref(refs[0].lo, refs[0].hi, 1);
+        if (seed % 8 == 3)  // mirror images: equal costs on two axes
+            for (uint32_t i = 0; i < n; ++i) refs[i] = cube(Vec3(float(i), float(i), 0.0f), 0.25f, i);
+        const NodeTask t = task_of(refs, 0, n);
+        const BinMapper m = BinMapper::make(t.cbounds, 4);
+        if (!m.any_valid()) continue;
+        const auto bins = binned(refs, 0, n, m);
+        const Split a = canopy::detail::evaluate_sweeps<4>(*bins, m, t.bounds, opt);
+        const Split b = canopy::detail::evaluate_sweeps<0>(*bins, m, t.bounds, opt);
+        ASSERT_EQ(a.axis, b.axis) << seed;
+        EXPECT_EQ(a.index, b.index) << seed;
+        EXPECT_EQ(a.left_count, b.left_count) << seed;
+        EXPECT_EQ(a.cost, b.cost) << seed;
+        const Split c = canopy::evaluate(*bins, m, t.bounds, opt);
+        EXPECT_EQ(c.axis, a.axis);
+        EXPECT_EQ(c.cost, a.cost);
+        found += a.found();
+    }
+    EXPECT_GT(found, 300u);
+}
+
 TEST(KernelEvaluate, NoSplitWhenNothingIsValid) {
     // Coincident centroids: no axis is valid.
     std::vector<PrimRef> refs;
@@ -656,6 +688,44 @@ TEST(KernelPartition, EvaluatedSplitPartitionsAsCounted) {
         EXPECT_EQ(p.mid, s.left_count);
         for (uint32_t i = 0; i < 1000; ++i) EXPECT_EQ(left_of(refs[i], m, s), i < p.mid) << i;
     }
+}
+
+TEST(KernelPartition, BinnedSidesMatchPartition) {
+    // partition_binned() reads the sides from the indices bin() left behind;
+    // it must leave the records and report the bounds as partition() does.
+    // Nodes of 1 to 64 records; some with a flat axis, some with neighbours
+    // sharing centroids; every valid axis and split index of several bin
+    // counts, not only the evaluated one.
+    uint32_t splits = 0;
+    for (uint32_t n = 1; n <= canopy::kBinBlock; ++n) {
+        std::vector<PrimRef> input = random_refs(n, 100 + n, 10.0f, 1.0f);
+        if (n % 3 == 0)
+            for (auto& r : input) r.hi.z = r.lo.z = 4.0f;
+        if (n % 5 == 0)
+            for (uint32_t i = 1; i < n; i += 2) input[i] = make_ref(input[i - 1].lo, input[i - 1].hi, input[i].id);
+        const NodeTask t = task_of(input, 0, n);
+        for (uint32_t nb : {2u, 4u, 7u, 32u}) {
+            const BinMapper m = BinMapper::make(t.cbounds, nb);
+            for (int axis = 0; axis < 3; ++axis) {
+                if (!m.valid[axis]) continue;
+                for (uint32_t k = 1; k < nb; ++k) {
+                    Split s;
+                    s.axis = axis;
+                    s.index = k;
+                    for (const auto& r : input) s.left_count += left_of(r, m, s);
+                    std::vector<PrimRef> a = input, b = input;
+                    const auto bins = binned(a, 0, n, m);
+                    const PartitionResult pa = canopy::partition_binned(a.data(), 0, n, s, *bins);
+                    const PartitionResult pb = canopy::partition(b.data(), 0, n, m, s);
+                    ASSERT_TRUE(same_records(a, b)) << n << " " << nb << " " << axis << " " << k;
+                    EXPECT_EQ(pa.mid, pb.mid);
+                    expect_child_bounds(pa, a.data(), 0, n);
+                    ++splits;
+                }
+            }
+        }
+    }
+    EXPECT_GT(splits, 3000u);
 }
 
 namespace {
