@@ -4,8 +4,11 @@
 #include "options.h"
 
 #include <algorithm>
+#include <limits>
 #include <cmath>
 #include <sstream>
+
+#include <emmintrin.h>
 
 namespace canopy {
 
@@ -13,18 +16,53 @@ namespace {
 
 bool finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 
-Vec3 canonical(const Vec3& v) { return {canonical_zero(v.x), canonical_zero(v.y), canonical_zero(v.z)}; }
-
-void record(PrimRef& r, PrepareSummary& s, const Vec3& lo, const Vec3& hi, size_t id) {
-    r.lo = canonical(lo);
-    r.hi = canonical(hi);
-    r.id = static_cast<uint32_t>(id);
-    r.area = prim_area(r.lo, r.hi);
-    s.max_area = std::max(s.max_area, r.area);
-    s.bounds.lo = glm::min(s.bounds.lo, r.lo);
-    s.bounds.hi = glm::max(s.bounds.hi, r.hi);
-    s.cbounds.extend(centroid(r));
+// A point as (x, y, z, 0), reading exactly its 12 bytes.
+inline __m128 load_point(const Vec3& p) {
+    const __m128 xy = _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(&p.x)));
+    return _mm_movelh_ps(xy, _mm_load_ss(&p.z));
 }
+
+// All of x, y, z finite (x - x is 0 for a finite x, NaN for an infinity or
+// a NaN).
+inline bool finite3(__m128 a) { return (_mm_movemask_ps(_mm_cmpeq_ps(_mm_sub_ps(a, a), _mm_setzero_ps())) & 7) == 7; }
+
+inline Vec3 to_vec3(__m128 v) {
+    alignas(16) float f[4];
+    _mm_store_ps(f, v);
+    return {f[0], f[1], f[2]};
+}
+
+// The running summary of a range, in registers.
+struct Accumulator {
+    __m128 lo = _mm_set1_ps(std::numeric_limits<float>::infinity());
+    __m128 hi = _mm_set1_ps(-std::numeric_limits<float>::infinity());
+    __m128 clo = lo, chi = hi;
+    float max_area = 0.0f;
+
+    // Writes the record of box [lo, hi] (lane 3 ignored) and adds it. Zeros
+    // are made +0 (x + 0 is x for every other x, and +0 for -0), as
+    // canonical_zero() does; the centroid is centroid()'s, lane for lane.
+    void record(PrimRef& r, __m128 lo4, __m128 hi4, size_t id) {
+        const __m128 zero = _mm_setzero_ps(), half = _mm_set1_ps(0.5f);
+        lo4 = _mm_add_ps(lo4, zero);
+        hi4 = _mm_add_ps(hi4, zero);
+        _mm_store_ps(&r.lo.x, lo4);
+        _mm_store_ps(&r.hi.x, hi4);
+        r.id = static_cast<uint32_t>(id);
+        r.area = prim_area(r.lo, r.hi);
+        max_area = std::max(max_area, r.area);
+        lo = _mm_min_ps(lo, lo4);
+        hi = _mm_max_ps(hi, hi4);
+        const __m128 c = _mm_add_ps(_mm_add_ps(_mm_mul_ps(lo4, half), _mm_mul_ps(hi4, half)), zero);
+        clo = _mm_min_ps(clo, c);
+        chi = _mm_max_ps(chi, c);
+    }
+    void into(PrepareSummary& s) const {
+        s.bounds = Box{to_vec3(lo), to_vec3(hi)};  // empty boxes when no record was added
+        s.cbounds = Box{to_vec3(clo), to_vec3(chi)};
+        s.max_area = max_area;
+    }
+};
 
 std::string vec_str(const Vec3& v) {
     std::ostringstream os;
@@ -51,6 +89,7 @@ void check_box_input(std::span<const Box> boxes) {
 
 PrepareSummary prepare_triangles(const TriangleView& mesh, size_t first, size_t last, PrimRef* out) {
     PrepareSummary s;
+    Accumulator acc;
     const size_t nv = mesh.vertices.size();
     const uint32_t* idx = mesh.indices.data();
     const Vec3* v = mesh.vertices.data();
@@ -60,27 +99,30 @@ PrepareSummary prepare_triangles(const TriangleView& mesh, size_t first, size_t 
             if (s.first_bad == PrepareSummary::kNone) s.first_bad = t;
             continue;
         }
-        const Vec3 a = v[i0], b = v[i1], c = v[i2];
+        const __m128 a = load_point(v[i0]), b = load_point(v[i1]), c = load_point(v[i2]);
         // Checked on the vertices themselves: min/max would drop a NaN.
-        if (!finite(a) || !finite(b) || !finite(c)) {
+        if (!finite3(_mm_add_ps(_mm_add_ps(_mm_sub_ps(a, a), _mm_sub_ps(b, b)), _mm_sub_ps(c, c)))) {
             if (s.first_bad == PrepareSummary::kNone) s.first_bad = t;
             continue;
         }
-        record(out[t], s, glm::min(a, glm::min(b, c)), glm::max(a, glm::max(b, c)), t);
+        acc.record(out[t], _mm_min_ps(a, _mm_min_ps(b, c)), _mm_max_ps(a, _mm_max_ps(b, c)), t);
     }
+    acc.into(s);
     return s;
 }
 
 PrepareSummary prepare_boxes(std::span<const Box> boxes, size_t first, size_t last, PrimRef* out) {
     PrepareSummary s;
+    Accumulator acc;
     for (size_t i = first; i < last; ++i) {
         const Box& b = boxes[i];
         if (!finite(b.lo) || !finite(b.hi) || b.is_empty()) {
             if (s.first_bad == PrepareSummary::kNone) s.first_bad = i;
             continue;
         }
-        record(out[i], s, b.lo, b.hi, i);
+        acc.record(out[i], load_point(b.lo), load_point(b.hi), i);
     }
+    acc.into(s);
     return s;
 }
 
