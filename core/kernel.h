@@ -318,7 +318,7 @@ namespace detail {
 template <bool Two>
 inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
     constexpr uint32_t kBlock = kBinBlock;
-    int32_t (*k)[4] = out.index;
+    int32_t (*k)[4] = out.index;  // the indices of the current block
     int axes[3], na = 0;
     for (int a = 0; a < 3; ++a)
         if (m.valid[a]) axes[na++] = a;
@@ -481,11 +481,12 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
 }
 }  // namespace detail
 
-// Nodes of up to 16 primitives, most of the nodes evaluated, have 4 bins
-// (bins_for()): their sweeps are unrolled (4/5 of the evaluations of a 1M
-// sphere; with partition_binned(), the sequential build took 0.97x as long
-// on the 1M sphere and 0.95x on dragon_vrip_res2, medians of 8 alternated
-// runs, and 6% fewer instructions).
+// Nodes of up to 64 primitives, almost all of the nodes evaluated, have 4,
+// 8 or 16 bins (bins_for()), and those of up to 16 primitives (4 bins) are
+// 4/5 of the evaluations of a 1M sphere: for these bin counts the sweeps
+// have a fixed trip count. (The 4-bin case with partition_binned(): the
+// sequential build took 0.97x as long on the 1M sphere and 0.95x on
+// dragon_vrip_res2, medians of 8 alternated runs, 6% fewer instructions.)
 inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt) {
     switch (m.bins) {
         case 4: return detail::evaluate_sweeps<4>(bins, m, node_bounds, opt);

@@ -22,9 +22,12 @@ inline __m128 load_point(const Vec3& p) {
     return _mm_movelh_ps(xy, _mm_load_ss(&p.z));
 }
 
-// All of x, y, z finite (x - x is 0 for a finite x, NaN for an infinity or
-// a NaN).
-inline bool finite3(__m128 a) { return (_mm_movemask_ps(_mm_cmpeq_ps(_mm_sub_ps(a, a), _mm_setzero_ps())) & 7) == 7; }
+// Every coordinate of the three points finite: x - x is 0 for a finite x
+// and NaN for an infinity or a NaN, and a sum with a NaN is NaN.
+inline bool all_finite(__m128 a, __m128 b, __m128 c) {
+    const __m128 d = _mm_add_ps(_mm_add_ps(_mm_sub_ps(a, a), _mm_sub_ps(b, b)), _mm_sub_ps(c, c));
+    return (_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7;
+}
 
 inline Vec3 to_vec3(__m128 v) {
     alignas(16) float f[4];
@@ -101,7 +104,7 @@ PrepareSummary prepare_triangles(const TriangleView& mesh, size_t first, size_t 
         }
         const __m128 a = load_point(v[i0]), b = load_point(v[i1]), c = load_point(v[i2]);
         // Checked on the vertices themselves: min/max would drop a NaN.
-        if (!finite3(_mm_add_ps(_mm_add_ps(_mm_sub_ps(a, a), _mm_sub_ps(b, b)), _mm_sub_ps(c, c)))) {
+        if (!all_finite(a, b, c)) {
             if (s.first_bad == PrepareSummary::kNone) s.first_bad = t;
             continue;
         }
