@@ -123,6 +123,21 @@ std::unique_ptr<BinSet> binned(const std::vector<PrimRef>& refs, uint32_t begin,
     return bins;
 }
 
+// Calls f(split) for every plane split of the mapping: each valid axis, each
+// split index 1 .. bins - 1 (left_count not set).
+template <class F>
+void for_each_plane_split(const BinMapper& m, F&& f) {
+    for (int axis = 0; axis < 3; ++axis) {
+        if (!m.valid[axis]) continue;
+        for (uint32_t k = 1; k < m.bins; ++k) {
+            Split s;
+            s.axis = axis;
+            s.index = k;
+            f(s);
+        }
+    }
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------- bins_for
@@ -615,35 +630,31 @@ TEST(KernelPartition, ThresholdSideTestMatchesTheBinIndex) {
     for (const Box& box : boxes) {
         for (uint32_t nb : {2u, 4u, 16u, 32u, 256u}) {
             const BinMapper m = BinMapper::make(box, nb);
-            for (int axis = 0; axis < 3; ++axis) {
-                if (!m.valid[axis]) continue;
-                for (uint32_t k = 1; k < nb; ++k) {
-                    Split s;
-                    s.axis = axis;
-                    s.index = k;
-                    const float t = canopy::split_threshold(m, axis, k);
-                    Vec3 at = box.lo;
-                    at[axis] = t;
-                    Vec3 before = box.lo;
-                    before[axis] = below(t);
-                    ASSERT_GE(bin_index(m, at, axis), k) << "axis " << axis << " k " << k;
-                    ASSERT_LT(bin_index(m, before, axis), k) << "axis " << axis << " k " << k;
-                    const canopy::SideTest by_threshold(m, s);
-                    const canopy::SideIndexTest by_index(m, s);
-                    std::uniform_real_distribution<float> u(0.0f, 1.0f);
-                    for (int i = 0; i < 40; ++i) {
-                        Vec3 c = box.lo;
-                        const float f = u(rng);
-                        c[axis] = i < 6 ? std::array<float, 6>{below(below(t)), below(t), t, above(t), above(above(t)),
-                                                               box.hi[axis]}[i]
-                                        : box.lo[axis] * (1.0f - f) + box.hi[axis] * f;
-                        const __m128 c4 = canopy::simd::vec(c);
-                        ASSERT_EQ(by_threshold.left(c4, c4), by_index.left(c4, c4))
-                            << "axis " << axis << " k " << k << " c " << c[axis] << " t " << t;
-                        ++checked;
-                    }
+            for_each_plane_split(m, [&](const Split& s) {
+                const int axis = s.axis;
+                const uint32_t k = s.index;
+                const float t = canopy::split_threshold(m, axis, k);
+                Vec3 at = box.lo;
+                at[axis] = t;
+                Vec3 before = box.lo;
+                before[axis] = below(t);
+                EXPECT_GE(bin_index(m, at, axis), k) << "axis " << axis << " k " << k;
+                EXPECT_LT(bin_index(m, before, axis), k) << "axis " << axis << " k " << k;
+                const canopy::SideTest by_threshold(m, s);
+                const canopy::SideIndexTest by_index(m, s);
+                std::uniform_real_distribution<float> u(0.0f, 1.0f);
+                for (int i = 0; i < 40; ++i) {
+                    Vec3 c = box.lo;
+                    const float f = u(rng);
+                    c[axis] = i < 6 ? std::array<float, 6>{below(below(t)), below(t), t, above(t), above(above(t)),
+                                                           box.hi[axis]}[i]
+                                    : box.lo[axis] * (1.0f - f) + box.hi[axis] * f;
+                    const __m128 c4 = canopy::simd::vec(c);
+                    ASSERT_EQ(by_threshold.left(c4, c4), by_index.left(c4, c4))
+                        << "axis " << axis << " k " << k << " c " << c[axis] << " t " << t;
+                    ++checked;
                 }
-            }
+            });
         }
     }
     EXPECT_GT(checked, 10000);
@@ -706,23 +717,17 @@ TEST(KernelPartition, BinnedSidesMatchPartition) {
         const NodeTask t = task_of(input, 0, n);
         for (uint32_t nb : {2u, 4u, 7u, 32u}) {
             const BinMapper m = BinMapper::make(t.cbounds, nb);
-            for (int axis = 0; axis < 3; ++axis) {
-                if (!m.valid[axis]) continue;
-                for (uint32_t k = 1; k < nb; ++k) {
-                    Split s;
-                    s.axis = axis;
-                    s.index = k;
-                    for (const auto& r : input) s.left_count += left_of(r, m, s);
-                    std::vector<PrimRef> a = input, b = input;
-                    const auto bins = binned(a, 0, n, m);
-                    const PartitionResult pa = canopy::partition_binned(a.data(), 0, n, s, *bins);
-                    const PartitionResult pb = canopy::partition(b.data(), 0, n, m, s);
-                    ASSERT_TRUE(same_records(a, b)) << n << " " << nb << " " << axis << " " << k;
-                    EXPECT_EQ(pa.mid, pb.mid);
-                    expect_child_bounds(pa, a.data(), 0, n);
-                    ++splits;
-                }
-            }
+            for_each_plane_split(m, [&](Split s) {
+                for (const auto& r : input) s.left_count += left_of(r, m, s);
+                std::vector<PrimRef> a = input, b = input;
+                const auto bins = binned(a, 0, n, m);
+                const PartitionResult pa = canopy::partition_binned(a.data(), 0, n, s, *bins);
+                const PartitionResult pb = canopy::partition(b.data(), 0, n, m, s);
+                ASSERT_TRUE(same_records(a, b)) << n << " " << nb << " " << s.axis << " " << s.index;
+                EXPECT_EQ(pa.mid, pb.mid);
+                expect_child_bounds(pa, a.data(), 0, n);
+                ++splits;
+            });
         }
     }
     EXPECT_GT(splits, 3000u);
