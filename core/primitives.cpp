@@ -16,9 +16,11 @@ namespace {
 
 bool finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 
-// A point as (x, y, z, 0), reading exactly its 12 bytes.
+// A point as (x, y, z, 0), reading exactly its 12 bytes. (x, y) is one
+// unaligned 8-byte load: _mm_loadl_epi64 reads through an unaligned type,
+// where _mm_load_sd would dereference a misaligned double (UBSan: undefined).
 inline __m128 load_point(const Vec3& p) {
-    const __m128 xy = _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(&p.x)));
+    const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i_u*>(&p.x)));
     return _mm_movelh_ps(xy, _mm_load_ss(&p.z));
 }
 
