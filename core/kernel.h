@@ -317,7 +317,6 @@ namespace detail {
 // bin() over blocks of records; Two: every other record into out.odd.
 template <bool Two>
 inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
-    constexpr uint32_t kBlock = kBinBlock;
     int32_t (*k)[4] = out.index;  // the indices of the current block
     int axes[3], na = 0;
     for (int a = 0; a < 3; ++a)
@@ -331,8 +330,8 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         set.counts[1][ki[1]]++;
         set.counts[2][ki[2]]++;
     };
-    for (uint32_t b0 = begin; b0 < end; b0 += kBlock) {
-        const uint32_t n = std::min(kBlock, end - b0);
+    for (uint32_t b0 = begin; b0 < end; b0 += kBinBlock) {
+        const uint32_t n = std::min(kBinBlock, end - b0);
         const PrimRef* r = refs + b0;
         for (uint32_t i = 0; i < n; ++i)
             _mm_store_si128(reinterpret_cast<__m128i*>(k[i]),

@@ -1,14 +1,12 @@
 #include "primitives.h"
 
 #include "error.h"
+#include "kernel.h"
 #include "options.h"
 
 #include <algorithm>
-#include <limits>
 #include <cmath>
 #include <sstream>
-
-#include <emmintrin.h>
 
 namespace canopy {
 
@@ -31,24 +29,18 @@ inline bool all_finite(__m128 a, __m128 b, __m128 c) {
     return (_mm_movemask_ps(_mm_cmpeq_ps(d, _mm_setzero_ps())) & 7) == 7;
 }
 
-inline Vec3 to_vec3(__m128 v) {
-    alignas(16) float f[4];
-    _mm_store_ps(f, v);
-    return {f[0], f[1], f[2]};
-}
-
 // The running summary of a range, in registers.
 struct Accumulator {
-    __m128 lo = _mm_set1_ps(std::numeric_limits<float>::infinity());
-    __m128 hi = _mm_set1_ps(-std::numeric_limits<float>::infinity());
+    __m128 lo = simd::pos_inf();
+    __m128 hi = simd::neg_inf();
     __m128 clo = lo, chi = hi;
     float max_area = 0.0f;
 
     // Writes the record of box [lo, hi] (lane 3 ignored) and adds it. Zeros
     // are made +0 (x + 0 is x for every other x, and +0 for -0), as
-    // canonical_zero() does; the centroid is centroid()'s, lane for lane.
+    // canonical_zero() does; the centroid is the kernel's (simd::centroid).
     void record(PrimRef& r, __m128 lo4, __m128 hi4, size_t id) {
-        const __m128 zero = _mm_setzero_ps(), half = _mm_set1_ps(0.5f);
+        const __m128 zero = _mm_setzero_ps();
         lo4 = _mm_add_ps(lo4, zero);
         hi4 = _mm_add_ps(hi4, zero);
         _mm_store_ps(&r.lo.x, lo4);
@@ -58,13 +50,13 @@ struct Accumulator {
         max_area = std::max(max_area, r.area);
         lo = _mm_min_ps(lo, lo4);
         hi = _mm_max_ps(hi, hi4);
-        const __m128 c = _mm_add_ps(_mm_add_ps(_mm_mul_ps(lo4, half), _mm_mul_ps(hi4, half)), zero);
+        const __m128 c = simd::centroid(lo4, hi4);
         clo = _mm_min_ps(clo, c);
         chi = _mm_max_ps(chi, c);
     }
     void into(PrepareSummary& s) const {
-        s.bounds = Box{to_vec3(lo), to_vec3(hi)};  // empty boxes when no record was added
-        s.cbounds = Box{to_vec3(clo), to_vec3(chi)};
+        s.bounds = Box{simd::vec3(lo), simd::vec3(hi)};  // empty boxes when no record was added
+        s.cbounds = Box{simd::vec3(clo), simd::vec3(chi)};
         s.max_area = max_area;
     }
 };
