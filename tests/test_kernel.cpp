@@ -147,13 +147,13 @@ TEST(KernelBinsFor, RuleValues) {
         uint32_t n, b16, b256, b2;
     };
     // min(bins, max(4, bit_ceil(n) / 4)), at least 2; from 2^16 on,
-    // min(256, 2 * bins).
+    // min(256, 2 * bins); from 2^19 on, min(256, 4 * bins).
     const Row rows[] = {
         {1, 4, 4, 2},     {2, 4, 4, 2},     {3, 4, 4, 2},     {4, 4, 4, 2},
         {8, 4, 4, 2},     {16, 4, 4, 2},    {17, 8, 8, 2},    {32, 8, 8, 2},
         {33, 16, 16, 2},  {64, 16, 16, 2},  {65, 16, 32, 2},  {128, 16, 32, 2},
         {129, 16, 64, 2}, {1000, 16, 256, 2}, {65535, 16, 256, 2}, {65536, 32, 256, 4},
-        {1u << 20, 32, 256, 4},
+        {(1u << 19) - 1, 32, 256, 4}, {1u << 19, 64, 256, 8}, {1u << 20, 64, 256, 8},
     };
     for (const Row& r : rows) {
         EXPECT_EQ(canopy::bins_for(r.n, 16), r.b16) << "n=" << r.n;
@@ -169,6 +169,9 @@ TEST(KernelBinsFor, RuleValues) {
     EXPECT_EQ(canopy::bins_for(1u << 31, 256), 256u);
     EXPECT_EQ(canopy::bins_for(canopy::kWideBinsMin, 100), 200u);
     EXPECT_EQ(canopy::bins_for(canopy::kWideBinsMin, 129), 256u);
+    EXPECT_EQ(canopy::bins_for(canopy::kWidestBinsMin, 32), 128u);
+    EXPECT_EQ(canopy::bins_for(canopy::kWidestBinsMin, 64), 256u);
+    EXPECT_EQ(canopy::bins_for(canopy::kWidestBinsMin - 1, 64), 128u);
 }
 
 // Regression test for a fixed bug: kMaxPrimitives allows counts up to
@@ -179,7 +182,7 @@ TEST(KernelBinsFor, CountsAbove2To31) {
     volatile uint32_t big = 0x80000001u;  // volatile: keep it a run-time value
     EXPECT_EQ(canopy::bins_for(big, 256), 256u);
     big = 0xFFFFFFFEu;
-    EXPECT_EQ(canopy::bins_for(big, 16), 32u);  // twice, as every node of 2^16 or more
+    EXPECT_EQ(canopy::bins_for(big, 16), 64u);  // four times, as every node of 2^19 or more
 }
 
 // ---------------------------------------------------------------- BinMapper
