@@ -212,7 +212,7 @@ private:
             NodeTask children[2];
             bool split;
             if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
-                ParallelNode pn(ctx, t);
+                ParallelNode pn(ctx, t, threads);
                 split = run_parallel_node(pn, children, me().skip, TbbForEach{}, [](auto&& fn) { fn(); }, nullptr, 0);
                 me().records.push_back(NodeRecord::of(t, !split));
             } else {
@@ -328,7 +328,7 @@ private:
             bool split;
             if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
                 const TraceScope trace(ctx.trace, t, me().id, TraceSpan::Parallel);
-                ParallelNode pn(ctx, t);
+                ParallelNode pn(ctx, t, threads);
                 split = run_parallel_node(pn, children, me().skip, TbbForEach{}, [](auto&& fn) { fn(); }, ctx.trace,
                                           me().id);
             } else {

@@ -6,7 +6,8 @@
 // `serial` ones on one thread, with a barrier between phases (see
 // run_parallel_node). The result is bit-identical to run_node():
 //  - bins merge with min/max and integer sums only (exact, order-free), so
-//    how the range is cut into chunks does not matter;
+//    neither how the range is cut into chunks nor which chunks share a bin
+//    set (see take_bins()) matters;
 //  - the partition swaps the same pairs as partition() (see mark_sides()
 //    in kernel.h): the chunks find their records' sides as bits, with their
 //    share of the child bounds (merged exactly too); one thread cuts the
@@ -21,16 +22,23 @@
 #include <algorithm>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <vector>
 
 namespace canopy {
 
 class ParallelNode {
 public:
-    static constexpr uint32_t kChunk = 32768;  // records per chunk (bin and mark); a multiple of 64
+    // Records per chunk (bin and mark): at least kChunk, and big enough that
+    // a node has at most kMaxChunks chunks; a multiple of 64.
+    static constexpr uint32_t kChunk = 32768;
+    static constexpr uint32_t kMaxChunks = 32;
     static constexpr uint32_t kSwapPiece = 16384;  // misplaced pairs per swap piece
 
-    ParallelNode(const KernelContext& ctx, const NodeTask& t) : ctx_(ctx), t_(t) {}
+    // `team`: how many threads will run the parallel phases (a hint: the
+    // bin sets they need are made in the serial start phase).
+    ParallelNode(const KernelContext& ctx, const NodeTask& t, uint32_t team)
+        : ctx_(ctx), t_(t), team_(std::max(1u, team)) {}
     const NodeTask& task() const { return t_; }
 
     // Whether the node is (still) going to split; read it after the serial
@@ -66,20 +74,22 @@ private:
             }
         }
         ++skip.parallel_nodes;
-        chunks_ = (t_.size() + kChunk - 1) / kChunk;
+        const uint32_t per_max = static_cast<uint32_t>((uint64_t(t_.size()) + kMaxChunks - 1) / kMaxChunks);
+        chunk_size_ = std::max(kChunk, (per_max + 63) / 64 * 64);
+        chunks_ = static_cast<uint32_t>((uint64_t(t_.size()) + chunk_size_ - 1) / chunk_size_);
         const uint32_t binned = plan_ == Plan::Sah ? chunks_ : 0;
-        if (binned > chunk_bins_.size()) chunk_bins_.resize(binned);
         chunk_sizes_.assign(sizes_ ? binned : 0, SizeBins{});
-        for (uint32_t i = 0; i < binned; ++i)
-            if (!chunk_bins_[i]) chunk_bins_[i] = std::make_unique<BinSet>();
+        bin_pool_.clear();
+        free_bins_.clear();
+        for (uint32_t i = 0; i < std::min(binned, team_); ++i) free_bins_.push_back(new_bins());
         chunk_.assign(chunks_, PartitionResult{});
         return true;
     }
 
     bool decide_impl(SkipCounts& skip) {
         if (plan_ != Plan::Sah) return true;
-        for (uint32_t i = 1; i < chunks_; ++i) chunk_bins_[0]->merge(*chunk_bins_[i], m_.bins);
-        split_ = evaluate(*chunk_bins_[0], m_, t_.bounds, *ctx_.options);
+        for (size_t i = 1; i < bin_pool_.size(); ++i) bin_pool_[0]->merge(*bin_pool_[i], m_.bins);
+        split_ = evaluate(*bin_pool_[0], m_, t_.bounds, *ctx_.options);
         if (sizes_) {
             for (uint32_t i = 1; i < chunks_; ++i) chunk_sizes_[0].merge(chunk_sizes_[i]);
             consider_size_split(chunk_sizes_[0], cuts_, t_.bounds, *ctx_.options, split_);
@@ -98,10 +108,10 @@ public:
     // Parallel over [0, bin_chunks()): bins one chunk.
     uint32_t bin_chunks() const { return plan_ == Plan::Sah ? chunks_ : 0; }
     void bin_chunk(uint32_t i) {
-        BinSet& b = *chunk_bins_[i];
-        b.clear(m_.bins);
+        BinSet* b = take_bins();
         const auto [lo, hi] = chunk_range(i);
-        bin(ctx_.refs, lo, hi, m_, b);
+        bin(ctx_.refs, lo, hi, m_, *b);
+        give_back(b);
         if (sizes_) bin_sizes(ctx_.refs, lo, hi, cuts_, chunk_sizes_[i]);
     }
 
@@ -145,13 +155,42 @@ public:
     }
 
 private:
+    // The bins a chunk is binned into: one not in use by another chunk. The
+    // start phase makes one per team thread; more are made only if more
+    // chunks run at once. Each set accumulates several chunks; which chunks
+    // share a set depends on timing, but the merge is exact and
+    // order-free, so the result does not. (A set per chunk, 56 KiB each,
+    // made the 4M stadium's root allocate 123 of them: in a traced build its
+    // serial start phase took 23 ms, the first touch of fresh memory, and
+    // the merge 1.9 ms. The sets are made by the thread that runs the start
+    // phase: made on demand by the tbb worker that first needed one, the 1M
+    // sphere's 2-thread build took 1.13x as long, medians of 8 alternated
+    // rounds, a glibc arena effect we did not pin down.)
+    BinSet* new_bins() {
+        BinSet* b = bin_pool_.emplace_back(std::make_unique<BinSet>()).get();
+        b->clear(m_.bins);
+        return b;
+    }
+    BinSet* take_bins() {
+        const std::lock_guard<std::mutex> lock(pool_mutex_);
+        if (free_bins_.empty()) return new_bins();
+        BinSet* b = free_bins_.back();
+        free_bins_.pop_back();
+        return b;
+    }
+    void give_back(BinSet* b) {
+        const std::lock_guard<std::mutex> lock(pool_mutex_);
+        free_bins_.push_back(b);
+    }
+
     std::pair<uint32_t, uint32_t> chunk_range(uint32_t i) const {
-        const uint32_t lo = t_.begin + i * kChunk;
-        return {lo, std::min(t_.end, lo + kChunk)};
+        const uint32_t lo = t_.begin + i * chunk_size_;
+        return {lo, static_cast<uint32_t>(std::min<uint64_t>(t_.end, uint64_t(lo) + chunk_size_))};
     }
 
     KernelContext ctx_;
     NodeTask t_;
+    uint32_t team_ = 1;
     Plan plan_ = Plan::Leaf;
     bool splits_ = false;
     BinMapper m_;
@@ -159,7 +198,10 @@ private:
     bool sizes_ = false;  // the size split is offered (SizeCuts::applies)
     Split split_;
     uint32_t chunks_ = 0;
-    std::vector<std::unique_ptr<BinSet>> chunk_bins_;
+    uint32_t chunk_size_ = kChunk;
+    std::vector<std::unique_ptr<BinSet>> bin_pool_;  // see take_bins()
+    std::vector<BinSet*> free_bins_;
+    std::mutex pool_mutex_;
     std::vector<SizeBins> chunk_sizes_;
     std::vector<PartitionResult> chunk_;  // each chunk's share of the child bounds
     std::vector<uint64_t> sides_;  // bit i: record t_.begin + i goes left

@@ -66,7 +66,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
         if (top.big.empty()) break;
         for (size_t i = 0; i < top.big.size(); ++i) {
 #pragma omp single
-            top.node = std::make_unique<ParallelNode>(ctx, top.big[i]);
+            top.node = std::make_unique<ParallelNode>(ctx, top.big[i], team);
             Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
             const TraceScope trace(wk.id == 0 ? ctx.trace : nullptr, top.big[i], wk.id, TraceSpan::Parallel);
             run_parallel_node(

@@ -60,7 +60,7 @@ struct OmpLevels {
                 if (lv.big.empty() && lv.small.empty()) break;
                 for (size_t i = 0; i < lv.big.size(); ++i) {
 #pragma omp single
-                    lv.node = std::make_unique<ParallelNode>(ctx, lv.big[i]);
+                    lv.node = std::make_unique<ParallelNode>(ctx, lv.big[i], team);
                     sched::Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
                     const TraceScope trace(wk.id == 0 ? ctx.trace : nullptr, lv.big[i], wk.id,
                                            TraceSpan::Parallel);

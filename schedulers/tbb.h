@@ -61,7 +61,7 @@ private:
             bool split;
             if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
                 const TraceScope trace(ctx.trace, t, me().id, TraceSpan::Parallel);
-                ParallelNode pn(ctx, t);
+                ParallelNode pn(ctx, t, threads);
                 split = run_parallel_node(
                     pn, children, me().skip,
                     [](uint32_t k, auto&& fn) {

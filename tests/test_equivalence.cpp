@@ -285,8 +285,11 @@ TEST(EquivalenceSlow, SharedScenes) {
     }
 }
 
+// Nodes of 2^19 records and more (four times the bins), and team-parallel
+// nodes of more than 32 chunks of ParallelNode::kChunk records (the sphere's
+// root: longer chunks, each bin set accumulating several of them).
 TEST(EquivalenceSlow, MillionTriangleScenes) {
-    for (const char* spec : {"gen:sphere:1000000", "gen:stadium:1000000"}) {
+    for (const char* spec : {"gen:sphere:1200000", "gen:stadium:1000000"}) {
         const Scene scene = load_scene(spec);
         const TriangleView view = scene.mesh.view();
         BuildOptions opt;
