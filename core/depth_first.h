@@ -7,6 +7,7 @@
 
 #include "bvh.h"
 #include "kernel.h"
+#include "memory.h"
 #include "options.h"
 #include "trace.h"
 
@@ -52,7 +53,8 @@ inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root
         const uint32_t c = static_cast<uint32_t>(nodes.size() - base);
         node.index = c;
         node.count = 0;
-        nodes.emplace_back();  // `node` is not used past this point
+        if (nodes.capacity() - nodes.size() < 2) grow_on_huge_pages(nodes);  // `node` dangles from here
+        nodes.emplace_back();
         nodes.emplace_back();
         stack[top++] = {children[1], c + 1};
         stack[top++] = {children[0], c};

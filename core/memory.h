@@ -9,6 +9,7 @@
 // many distributions ship), one fault per 2 MiB.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <vector>
 
@@ -26,6 +27,19 @@ template <class T>
 void reserve_on_huge_pages(std::vector<T>& v, std::size_t n) {
     v.reserve(n);
     advise_huge_pages(v.data(), v.capacity() * sizeof(T));
+}
+
+// Doubles v's capacity (at least one more element) on memory advised for
+// huge pages before the elements are copied in. (std::vector's own growth
+// copies them into fresh memory at once, before any advice can be given:
+// the sequential build of 1M random triangles, whose tree outgrows its
+// reservation, then faulted 70 MB in 4 KiB pages.)
+template <class T>
+void grow_on_huge_pages(std::vector<T>& v) {
+    std::vector<T> bigger;
+    reserve_on_huge_pages(bigger, std::max<std::size_t>(2 * v.capacity(), v.size() + 1));
+    bigger.insert(bigger.end(), v.begin(), v.end());
+    v.swap(bigger);
 }
 
 }  // namespace canopy

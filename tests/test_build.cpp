@@ -5,9 +5,11 @@
 #include "core/error.h"
 #include "core/kernel.h"
 #include "core/layout.h"
+#include "core/memory.h"
 #include "core/mesh.h"
 #include "core/options.h"
 #include "core/primitives.h"
+#include "core/scene.h"
 #include "core/sah.h"
 #include "core/validate.h"
 #include "schedulers/sequential.h"
@@ -498,6 +500,45 @@ TEST(BuildShape, TenThousandCoincidentTriangles) {
         // Middle splits keep the input order: the permutation is the identity.
         for (uint32_t i = 0; i < b.permutation.size(); ++i) ASSERT_EQ(b.permutation[i], i);
     }
+}
+
+// grow_on_huge_pages() (the sequential driver's node array when a tree
+// outgrows its reservation): the elements survive, the capacity doubles.
+TEST(BuildMemory, GrowOnHugePagesKeepsTheElements) {
+    std::vector<canopy::Node> v;
+    v.reserve(3);
+    for (uint32_t i = 0; i < 3; ++i) {
+        canopy::Node n{};
+        n.min[0] = float(i);
+        n.index = i;
+        n.count = i + 1;
+        v.push_back(n);
+    }
+    canopy::grow_on_huge_pages(v);
+    ASSERT_EQ(v.size(), 3u);
+    EXPECT_GE(v.capacity(), 6u);
+    for (uint32_t i = 0; i < 3; ++i) {
+        EXPECT_EQ(v[i].min[0], float(i));
+        EXPECT_EQ(v[i].index, i);
+        EXPECT_EQ(v[i].count, i + 1);
+    }
+    std::vector<canopy::Node> empty;
+    canopy::grow_on_huge_pages(empty);
+    EXPECT_TRUE(empty.empty());
+    EXPECT_GE(empty.capacity(), 1u);
+}
+
+// A tree of more nodes than the sequential driver reserves (1.1 per
+// primitive): leaves of one primitive need 2n - 1, so the node array grows
+// during the build (the equivalence suite compares such trees across the
+// schedulers).
+TEST(BuildShape, TreeOutgrowsTheNodeReservation) {
+    const canopy::TriangleMesh m = canopy::generate("random", 30000, 5);
+    canopy::BuildOptions opt;
+    opt.max_leaf = 1;
+    const canopy::Bvh seq = canopy::build<canopy::Sequential>(m.view(), opt);
+    EXPECT_EQ(seq.nodes.size(), 2 * m.triangle_count() - 1);
+    EXPECT_TRUE(canopy::validate(seq, m.view(), opt).ok());
 }
 
 TEST(BuildShape, SingleAndTwoPrimitives) {
