@@ -163,9 +163,10 @@ private:
     // made the 4M stadium's root allocate 123 of them: in a traced build its
     // serial start phase took 23 ms, the first touch of fresh memory, and
     // the merge 1.9 ms. The sets are made by the thread that runs the start
-    // phase: made on demand by the tbb worker that first needed one, the 1M
-    // sphere's 2-thread build took 1.13x as long, medians of 8 alternated
-    // rounds, a glibc arena effect we did not pin down.)
+    // phase: made on demand by whichever tbb worker first needed one, the 1M
+    // sphere's 2-thread build took 1.06x to 1.16x as long in alternated
+    // rounds, an allocator effect (glibc's per-thread arenas) that we did
+    // not pin down.)
     BinSet* new_bins() {
         BinSet* b = bin_pool_.emplace_back(std::make_unique<BinSet>()).get();
         b->clear(m_.bins);
