@@ -25,6 +25,9 @@
 #include <vector>
 
 #include <emmintrin.h>
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 namespace canopy {
 
@@ -142,6 +145,44 @@ struct Box4 {
     Box box() const { return Box{vec3(lo), vec3(hi)}; }
 };
 
+// A box kept as (lo, -hi), for the bins: growing it is one minimum over both
+// halves, a single 256-bit operation where AVX is compiled in (two 128-bit
+// ones otherwise). min(-a, -b) = -max(a, b) exactly, and on a tie (equal
+// values, +0 and -0 included) both return their second operand, so the box
+// is bit for bit the Box4 that max() would have grown.
+inline __m128 negate(__m128 v) { return _mm_xor_ps(v, _mm_set1_ps(-0.0f)); }
+#if defined(__AVX__)
+struct MinBox {
+    __m256 v = _mm256_set1_ps(std::numeric_limits<float>::infinity());
+    // A record's (lo, -hi), both with lane 3 cleared.
+    static __m256 of(const PrimRef& r) {
+        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1));
+        constexpr int32_t s = std::numeric_limits<int32_t>::min();  // the sign bit
+        const __m256 sign = _mm256_castsi256_ps(_mm256_set_epi32(0, s, s, s, 0, 0, 0, 0));
+        return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), sign);
+    }
+    void grow(__m256 x) { v = _mm256_min_ps(v, x); }
+    void grow(const MinBox& o) { grow(o.v); }
+    Box4 box4() const { return Box4{_mm256_castps256_ps128(v), negate(_mm256_extractf128_ps(v, 1))}; }
+};
+#else
+struct MinBox {
+    struct Packed {
+        __m128 lo, nhi;
+    };
+    __m128 lo = pos_inf(), nhi = pos_inf();
+    static Packed of(const PrimRef& r) {
+        return {_mm_and_ps(_mm_load_ps(&r.lo.x), xyz_mask()), negate(_mm_and_ps(_mm_load_ps(&r.hi.x), xyz_mask()))};
+    }
+    void grow(const Packed& x) {
+        lo = _mm_min_ps(lo, x.lo);
+        nhi = _mm_min_ps(nhi, x.nhi);
+    }
+    void grow(const MinBox& o) { grow(Packed{o.lo, o.nhi}); }
+    Box4 box4() const { return Box4{lo, negate(nhi)}; }
+};
+#endif
+
 // The SAH measure of boxes inside one node, in float without overflow or
 // loss: every box is scaled by the same power of two, 2^-e with 2^e at least
 // the node's largest extent, so scaled extents are at most 1 and the
@@ -170,6 +211,10 @@ struct Measure {
         _MM_TRANSPOSE4_PS(x, y, z, w);  // now x = (dx of box 0, 1, 2, 0), y = dys, z = dzs
         if (use_length) return _mm_add_ps(_mm_add_ps(x, y), z);
         return _mm_add_ps(_mm_add_ps(_mm_mul_ps(x, y), _mm_mul_ps(y, z)), _mm_mul_ps(z, x));
+    }
+    __m128 three(const MinBox (&b)[3]) const {
+        const Box4 boxes[3] = {b[0].box4(), b[1].box4(), b[2].box4()};
+        return three(boxes);
     }
     float operator()(const Box4& b) const {
         const __m128 d = _mm_sub_ps(_mm_mul_ps(b.hi, scale), _mm_mul_ps(b.lo, scale));
@@ -257,20 +302,20 @@ struct BinMapper {
 
 // Per-axis bins: the box of the primitives and their count.
 struct BinArrays {
-    simd::Box4 box4[3][kMaxBins];
+    simd::MinBox bounds[3][kMaxBins];  // (lo, -hi): see simd::MinBox
     // counts[axis][b]. (Stored bin-major instead, so that evaluate() could
     // load a bin's three counts as one vector, the sequential dragon build
     // took 1% to 2% longer in three alternated comparisons; why is not known.)
     uint32_t counts[3][kMaxBins];
 
-    Box box(int axis, uint32_t b) const { return box4[axis][b].box(); }
+    Box box(int axis, uint32_t b) const { return bounds[axis][b].box4().box(); }
     uint32_t count(int axis, uint32_t b) const { return counts[axis][b]; }
     void clear(uint32_t bins) {
         // Counts four at a time (kMaxBins is a multiple of 4): most nodes have
         // 4 bins, and std::fill_n became a memset call per axis.
         static_assert(kMaxBins % 4 == 0);
         for (int a = 0; a < 3; ++a) {
-            std::fill_n(box4[a], bins, simd::Box4{});
+            std::fill_n(bounds[a], bins, simd::MinBox{});
             for (uint32_t b = 0; b < bins; b += 4)
                 _mm_storeu_si128(reinterpret_cast<__m128i*>(counts[a] + b), _mm_setzero_si128());
         }
@@ -279,7 +324,7 @@ struct BinArrays {
     void merge(const BinArrays& o, uint32_t bins) {
         for (int a = 0; a < 3; ++a)
             for (uint32_t b = 0; b < bins; ++b) {
-                box4[a][b].grow(o.box4[a][b]);
+                bounds[a][b].grow(o.bounds[a][b]);
                 counts[a][b] += o.counts[a][b];
             }
     }
@@ -316,6 +361,13 @@ struct BinSet : BinArrays {
 // chains. Measured, sequential builds (alternated runs): 1M sphere 0.94x to
 // 0.96x, dragon_vrip_res2 0.98x to 0.99x. Small ranges keep one set:
 // clearing and merging a second one would cost more than it saves.
+//
+// The bins' boxes are simd::MinBox, (lo, -hi): one 256-bit minimum per
+// update with AVX instead of a minimum and a maximum on two 128-bit halves.
+// Clearing and binning 1M sphere records in ranges of 16, 60, 1,000, 20,000
+// and 1M records (a small program against this header, fastest of 30 to 60
+// runs, alternated): 0.80x to 0.93x as long; the sequential build of the cow
+// runs 4.3% fewer instructions (cachegrind).
 inline constexpr uint32_t kTwoBinSetsMin = 256;
 
 namespace detail {
@@ -328,10 +380,10 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
     for (int a = 0; a < 3; ++a)
         if (m.valid[a]) axes[na++] = a;
     const auto update = [](BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
-        const __m128 lo = simd::lo(x), hi = simd::hi(x);
-        set.box4[0][ki[0]].grow(lo, hi);
-        set.box4[1][ki[1]].grow(lo, hi);
-        set.box4[2][ki[2]].grow(lo, hi);
+        const auto box = simd::MinBox::of(x);
+        set.bounds[0][ki[0]].grow(box);
+        set.bounds[1][ki[1]].grow(box);
+        set.bounds[2][ki[2]].grow(box);
         set.counts[0][ki[0]]++;
         set.counts[1][ki[1]]++;
         set.counts[2][ki[2]]++;
@@ -355,10 +407,10 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
             for (uint32_t i = 0; i < n; ++i) update(out, r[i], k[i]);
         } else {
             for (uint32_t i = 0; i < n; ++i) {
-                const __m128 lo = simd::lo(r[i]), hi = simd::hi(r[i]);
+                const auto box = simd::MinBox::of(r[i]);
                 for (int j = 0; j < na; ++j) {
                     const int a = axes[j];
-                    out.box4[a][k[i][a]].grow(lo, hi);
+                    out.bounds[a][k[i][a]].grow(box);
                     out.counts[a][k[i][a]]++;
                 }
             }
@@ -432,10 +484,10 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     const bool huge = total >= (uint64_t(1) << 31);
     const auto to_float = [huge](__m128i c) { return huge ? simd::to_float(c) : _mm_cvtepi32_ps(c); };
     __m128 right_cost[Fixed ? Fixed : kMaxBins];  // A_R n_R of the split before bin b; -1: empty
-    simd::Box4 acc[3];
+    simd::MinBox acc[3];
     __m128i n = zero;
     for (uint32_t b = nb - 1; b > 0; --b) {
-        for (int a = 0; a < 3; ++a) acc[a].grow(bins.box4[a][b]);
+        for (int a = 0; a < 3; ++a) acc[a].grow(bins.bounds[a][b]);
         n = _mm_add_epi32(n, counts(b));
         const __m128 empty = _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero));
         const __m128 cost = _mm_mul_ps(measure.three(acc), to_float(n));
@@ -446,10 +498,10 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     __m128 best_sum = simd::pos_inf();  // per axis: A_L n_L + A_R n_R of its best split
     __m128 found = _mm_setzero_ps();
     __m128i best_index = zero, best_left = zero;
-    for (int a = 0; a < 3; ++a) acc[a] = simd::Box4{};
+    for (int a = 0; a < 3; ++a) acc[a] = simd::MinBox{};
     n = zero;
     for (uint32_t s = 1; s < nb; ++s) {
-        for (int a = 0; a < 3; ++a) acc[a].grow(bins.box4[a][s - 1]);
+        for (int a = 0; a < 3; ++a) acc[a].grow(bins.bounds[a][s - 1]);
         n = _mm_add_epi32(n, counts(s - 1));
         const __m128 sum = _mm_add_ps(_mm_mul_ps(measure.three(acc), to_float(n)), right_cost[s]);
         // A candidate: a valid axis, both sides non-empty, and strictly

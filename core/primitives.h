@@ -21,7 +21,9 @@ namespace canopy {
 // and the area sit in the fourth lanes, which no arithmetic touches: the
 // kernel masks them off before computing with a box (the id's bits as a float
 // would be a slow subnormal), and only compares and takes maxima of the area.
-struct alignas(16) PrimRef {
+// Aligned to 32 bytes, so that no record straddles two cache lines: the bins
+// load a record as one 256-bit vector where AVX is compiled in.
+struct alignas(32) PrimRef {
     Vec3 lo;
     uint32_t id;
     Vec3 hi;
