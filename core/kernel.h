@@ -255,6 +255,43 @@ struct BinMapper {
     // 1, and the scale is computed for the rescaled extent. Other axes keep
     // a prescale of 1, so the mapping of ordinary scenes is unchanged.
     static BinMapper make(const Box& cbounds, uint32_t bins) {
+        // The common case, the three axes at once: no extent in (0, 2^-64).
+        // The same IEEE operations as make_general() (double extents, bins /
+        // extent in double, rounded to float), so the same mapping. There
+        // bins / extent <= 2^8 / 2^-64 cannot overflow float, and >= 2^-128
+        // (extents of finite floats are below 2^129) is not 0.
+        BinMapper m;
+        m.origin = cbounds.lo;
+        m.bins = bins;
+        m.origin4 = simd::vec(m.origin);
+        m.last4 = _mm_set1_ps(float(bins - 1));
+        const __m128 hi4 = simd::vec(cbounds.hi);
+        const __m128d ext_xy = _mm_sub_pd(_mm_cvtps_pd(hi4), _mm_cvtps_pd(m.origin4));
+        const __m128d ext_z = _mm_sub_pd(_mm_cvtps_pd(_mm_movehl_ps(hi4, hi4)),
+                                         _mm_cvtps_pd(_mm_movehl_ps(m.origin4, m.origin4)));  // (z, 0)
+        const __m128d zero = _mm_setzero_pd(), tiny = _mm_set1_pd(0x1p-64);
+        const __m128d pos_xy = _mm_cmpgt_pd(ext_xy, zero), pos_z = _mm_cmpgt_pd(ext_z, zero);
+        if (_mm_movemask_pd(_mm_and_pd(pos_xy, _mm_cmplt_pd(ext_xy, tiny))) |
+            _mm_movemask_pd(_mm_and_pd(pos_z, _mm_cmplt_pd(ext_z, tiny))))
+            return make_general(cbounds, bins);
+        const __m128d nb = _mm_set1_pd(double(bins));
+        const __m128 sf = _mm_movelh_ps(_mm_cvtpd_ps(_mm_div_pd(nb, ext_xy)), _mm_cvtpd_ps(_mm_div_pd(nb, ext_z)));
+        // The extents' signs as float lanes (x, y, z, 0).
+        const __m128 pos = _mm_shuffle_ps(_mm_castpd_ps(pos_xy), _mm_castpd_ps(pos_z), _MM_SHUFFLE(2, 0, 2, 0));
+        const __m128 ok = _mm_and_ps(pos, _mm_and_ps(_mm_cmplt_ps(sf, simd::pos_inf()), _mm_cmpgt_ps(sf, _mm_setzero_ps())));
+        m.scale4 = _mm_and_ps(ok, sf);
+        m.prescale4 = _mm_set_ps(0.0f, 1.0f, 1.0f, 1.0f);  // simd::vec(prescale), as make_general() sets it
+        const __m128i top = m.indices4(hi4);
+        const __m128 valid = _mm_and_ps(_mm_cmpgt_ps(m.scale4, _mm_setzero_ps()),
+                                        _mm_castsi128_ps(_mm_cmpgt_epi32(top, _mm_setzero_si128())));
+        m.scale4 = _mm_and_ps(valid, m.scale4);
+        m.scale = simd::vec3(m.scale4);
+        const int bits = _mm_movemask_ps(valid);
+        for (int a = 0; a < 3; ++a) m.valid[a] = (bits >> a) & 1;
+        return m;
+    }
+    // Any extents, tiny ones included (see above).
+    static BinMapper make_general(const Box& cbounds, uint32_t bins) {
         BinMapper m;
         m.origin = cbounds.lo;
         m.bins = bins;

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <numeric>
 #include <cfloat>
 #include <cmath>
@@ -314,6 +315,50 @@ TEST(KernelBinMapper, IndexClampsOutsideValues) {
     // Hand values: (15 - 10) * 8 / 10 = 4 -> bin 4; (14.9 - 10) * 8 / 10 = 3.92 -> bin 3.
     EXPECT_EQ(bin_index(m, 15.0f, 0), 4u);
     EXPECT_EQ(bin_index(m, 14.9f, 0), 3u);
+}
+
+// make() maps the three axes at once unless an extent is in (0, 2^-64);
+// make_general() is the per-axis reference. Both must give the same mapping,
+// field for field, on ordinary, zero, huge and near-threshold extents.
+TEST(KernelBinMapper, FastMakeMatchesTheGeneralOne) {
+    auto same = [](const Box& cb, uint32_t bins) {
+        const BinMapper f = BinMapper::make(cb, bins), g = BinMapper::make_general(cb, bins);
+        for (int a = 0; a < 3; ++a) {
+            EXPECT_EQ(f.valid[a], g.valid[a]) << "axis " << a << " bins " << bins;
+            EXPECT_EQ(std::bit_cast<uint32_t>(f.scale[a]), std::bit_cast<uint32_t>(g.scale[a])) << "axis " << a;
+            EXPECT_EQ(std::bit_cast<uint32_t>(f.prescale[a]), std::bit_cast<uint32_t>(g.prescale[a])) << "axis " << a;
+            EXPECT_EQ(std::bit_cast<uint32_t>(f.origin[a]), std::bit_cast<uint32_t>(g.origin[a])) << "axis " << a;
+        }
+        alignas(16) float s4[4], p4[4], o4[4], l4[4];
+        alignas(16) float gs4[4], gp4[4], go4[4], gl4[4];
+        _mm_store_ps(s4, f.scale4), _mm_store_ps(p4, f.prescale4), _mm_store_ps(o4, f.origin4), _mm_store_ps(l4, f.last4);
+        _mm_store_ps(gs4, g.scale4), _mm_store_ps(gp4, g.prescale4), _mm_store_ps(go4, g.origin4), _mm_store_ps(gl4, g.last4);
+        EXPECT_EQ(std::memcmp(s4, gs4, 16), 0);
+        EXPECT_EQ(std::memcmp(p4, gp4, 16), 0);
+        EXPECT_EQ(std::memcmp(o4, go4, 16), 0);
+        EXPECT_EQ(std::memcmp(l4, gl4, 16), 0);
+        EXPECT_EQ(f.bins, g.bins);
+    };
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    std::uniform_int_distribution<int> ex(-140, 127);
+    const float edge[] = {0.0f, 1e-30f, 0x1p-64f, 0x1.000002p-64f, 0x1.fffffep-65f, FLT_MIN, 1e-20f,
+                          1.0f, 3.0f, 1e20f, FLT_MAX / 2, FLT_MAX};
+    for (uint32_t bins : {2u, 4u, 7u, 32u, 256u}) {
+        for (int i = 0; i < 2000; ++i) {
+            Vec3 lo, hi;
+            for (int a = 0; a < 3; ++a) {
+                const float base = std::ldexp(u(rng), ex(rng));
+                const float size = (i % 3 == 0) ? edge[rng() % std::size(edge)] : std::ldexp(std::abs(u(rng)), ex(rng));
+                lo[a] = base;
+                hi[a] = std::isfinite(base + size) ? base + size : base;
+            }
+            same(Box{lo, hi}, bins);
+        }
+        same(Box{Vec3(-FLT_MAX), Vec3(FLT_MAX)}, bins);
+        same(Box{Vec3(0), Vec3(0)}, bins);
+        same(Box{Vec3(1, 2, 3), Vec3(1, 2, 3 + 0x1p-22f)}, bins);
+    }
 }
 
 // ---------------------------------------------------------------- bin
