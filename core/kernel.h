@@ -172,7 +172,7 @@ struct MinBox {
     };
     __m128 lo = pos_inf(), nhi = pos_inf();
     static Packed of(const PrimRef& r) {
-        return {_mm_and_ps(_mm_load_ps(&r.lo.x), xyz_mask()), negate(_mm_and_ps(_mm_load_ps(&r.hi.x), xyz_mask()))};
+        return {simd::lo(r), negate(simd::hi(r))};
     }
     void grow(const Packed& x) {
         lo = _mm_min_ps(lo, x.lo);
@@ -260,11 +260,7 @@ struct BinMapper {
         // extent in double, rounded to float), so the same mapping. There
         // bins / extent <= 2^8 / 2^-64 cannot overflow float, and >= 2^-128
         // (extents of finite floats are below 2^129) is not 0.
-        BinMapper m;
-        m.origin = cbounds.lo;
-        m.bins = bins;
-        m.origin4 = simd::vec(m.origin);
-        m.last4 = _mm_set1_ps(float(bins - 1));
+        BinMapper m = started(cbounds, bins);
         const __m128 hi4 = simd::vec(cbounds.hi);
         const __m128d ext_xy = _mm_sub_pd(_mm_cvtps_pd(hi4), _mm_cvtps_pd(m.origin4));
         const __m128d ext_z = _mm_sub_pd(_mm_cvtps_pd(_mm_movehl_ps(hi4, hi4)),
@@ -279,24 +275,14 @@ struct BinMapper {
         // The extents' signs as float lanes (x, y, z, 0).
         const __m128 pos = _mm_shuffle_ps(_mm_castpd_ps(pos_xy), _mm_castpd_ps(pos_z), _MM_SHUFFLE(2, 0, 2, 0));
         const __m128 ok = _mm_and_ps(pos, _mm_and_ps(_mm_cmplt_ps(sf, simd::pos_inf()), _mm_cmpgt_ps(sf, _mm_setzero_ps())));
+        m.prescale4 = simd::vec(m.prescale);
         m.scale4 = _mm_and_ps(ok, sf);
-        m.prescale4 = _mm_set_ps(0.0f, 1.0f, 1.0f, 1.0f);  // simd::vec(prescale), as make_general() sets it
-        const __m128i top = m.indices4(hi4);
-        const __m128 valid = _mm_and_ps(_mm_cmpgt_ps(m.scale4, _mm_setzero_ps()),
-                                        _mm_castsi128_ps(_mm_cmpgt_epi32(top, _mm_setzero_si128())));
-        m.scale4 = _mm_and_ps(valid, m.scale4);
-        m.scale = simd::vec3(m.scale4);
-        const int bits = _mm_movemask_ps(valid);
-        for (int a = 0; a < 3; ++a) m.valid[a] = (bits >> a) & 1;
+        m.finish(hi4);
         return m;
     }
     // Any extents, tiny ones included (see above).
     static BinMapper make_general(const Box& cbounds, uint32_t bins) {
-        BinMapper m;
-        m.origin = cbounds.lo;
-        m.bins = bins;
-        m.origin4 = simd::vec(m.origin);
-        m.last4 = _mm_set1_ps(float(bins - 1));
+        BinMapper m = started(cbounds, bins);
         for (int a = 0; a < 3; ++a) {
             double ext = cbounds.extent(a);
             if (!(ext > 0.0)) continue;
@@ -310,13 +296,28 @@ struct BinMapper {
         }
         m.prescale4 = simd::vec(m.prescale);
         m.scale4 = simd::vec(m.scale);
-        const auto top = m.indices(simd::vec(cbounds.hi));
-        for (int a = 0; a < 3; ++a) {
-            m.valid[a] = m.scale[a] > 0.0f && top[a] > 0;
-            if (!m.valid[a]) m.scale[a] = 0.0f;
-        }
-        m.scale4 = simd::vec(m.scale);
+        m.finish(simd::vec(cbounds.hi));
         return m;
+    }
+    // The fields both makes start with.
+    static BinMapper started(const Box& cbounds, uint32_t bins) {
+        BinMapper m;
+        m.origin = cbounds.lo;
+        m.bins = bins;
+        m.origin4 = simd::vec(m.origin);
+        m.last4 = _mm_set1_ps(float(bins - 1));
+        return m;
+    }
+    // With scale4 and prescale4 set: an axis is valid when its scale is
+    // positive and the largest centroid (hi4) leaves bin 0; the scale of
+    // every other axis becomes 0.
+    void finish(__m128 hi4) {
+        const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(scale4, _mm_setzero_ps()),
+                                     _mm_castsi128_ps(_mm_cmpgt_epi32(indices4(hi4), _mm_setzero_si128())));
+        scale4 = _mm_and_ps(ok, scale4);
+        scale = simd::vec3(scale4);
+        const int bits = _mm_movemask_ps(ok);
+        for (int a = 0; a < 3; ++a) valid[a] = (bits >> a) & 1;
     }
     bool any_valid() const { return valid[0] || valid[1] || valid[2]; }
     int valid_count() const { return valid[0] + valid[1] + valid[2]; }
