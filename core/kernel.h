@@ -192,7 +192,7 @@ struct MinBox {
 struct Measure {
     __m128 scale;
     bool use_length;
-    Measure(const Box& node, bool length) : use_length(length) {
+    [[gnu::always_inline]] Measure(const Box& node, bool length) : use_length(length) {
         const double ext = std::max({node.extent(0), node.extent(1), node.extent(2)});
         // e = floor(log2(ext)) + 1 from the double's exponent field, so
         // ext < 2^e; the scale 2^-e is built from its bits (1 <= 127 - e <= 253
@@ -203,7 +203,7 @@ struct Measure {
     }
     // The measure of three boxes at once, lane a for box a (lane 3: 0);
     // lane for lane the same operations as operator().
-    __m128 three(const Box4 (&b)[3]) const {
+    [[gnu::always_inline]] __m128 three(const Box4 (&b)[3]) const {
         __m128 x = _mm_sub_ps(_mm_mul_ps(b[0].hi, scale), _mm_mul_ps(b[0].lo, scale));
         __m128 y = _mm_sub_ps(_mm_mul_ps(b[1].hi, scale), _mm_mul_ps(b[1].lo, scale));
         __m128 z = _mm_sub_ps(_mm_mul_ps(b[2].hi, scale), _mm_mul_ps(b[2].lo, scale));
@@ -212,7 +212,7 @@ struct Measure {
         if (use_length) return _mm_add_ps(_mm_add_ps(x, y), z);
         return _mm_add_ps(_mm_add_ps(_mm_mul_ps(x, y), _mm_mul_ps(y, z)), _mm_mul_ps(z, x));
     }
-    __m128 three(const MinBox (&b)[3]) const {
+    [[gnu::always_inline]] __m128 three(const MinBox (&b)[3]) const {
         const Box4 boxes[3] = {b[0].box4(), b[1].box4(), b[2].box4()};
         return three(boxes);
     }
@@ -499,9 +499,17 @@ namespace detail {
 // The sweeps for m.bins bins, or for exactly Fixed bins (Fixed > 0): the
 // same operations in the same order, with loops of a known trip count that
 // the compiler unrolls and whose sweep values stay in registers.
-template <uint32_t Fixed>
-Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt) {
+//
+// Counts convert to float with the signed conversion, exact below 2^31. A
+// node of 2^31 primitives or more (Huge) needs the unsigned one; that is
+// found after the sweeps, from the node's count (the sweep's total), and the
+// sweeps are then run again with it. (Summing the counts first, to choose
+// before sweeping, was 2% of the cow's build instructions.)
+template <uint32_t Fixed, bool Huge>
+Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt,
+                      bool& too_many) {
     Split best;
+    too_many = false;
     const bool use_length = !(node_bounds.half_area() > 0.0);
     const simd::Measure measure(node_bounds, use_length);
     simd::Box4 node4;
@@ -514,13 +522,7 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
         return _mm_set_epi32(0, int32_t(bins.counts[2][b]), int32_t(bins.counts[1][b]), int32_t(bins.counts[0][b]));
     };
     const __m128i zero = _mm_setzero_si128();
-    // Counts below 2^31 (every node of fewer than 2^31 primitives) convert
-    // exactly with the signed conversion; the general one is for bigger nodes.
-    uint64_t total = 0;
-    const int first_valid = m.valid[0] ? 0 : m.valid[1] ? 1 : 2;
-    for (uint32_t b = 0; b < nb; ++b) total += bins.counts[first_valid][b];
-    const bool huge = total >= (uint64_t(1) << 31);
-    const auto to_float = [huge](__m128i c) { return huge ? simd::to_float(c) : _mm_cvtepi32_ps(c); };
+    const auto to_float = [](__m128i c) { return Huge ? simd::to_float(c) : _mm_cvtepi32_ps(c); };
     __m128 right_cost[Fixed ? Fixed : kMaxBins];  // A_R n_R of the split before bin b; -1: empty
     simd::MinBox acc[3];
     __m128i n = zero;
@@ -530,6 +532,13 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
         const __m128 empty = _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero));
         const __m128 cost = _mm_mul_ps(measure.three(acc), to_float(n));
         right_cost[b] = _mm_or_ps(_mm_and_ps(empty, _mm_set1_ps(-1.0f)), _mm_andnot_ps(empty, cost));
+    }
+    if constexpr (!Huge) {
+        // Every lane's total is the node's count (or 0 on an axis not binned).
+        if (_mm_movemask_ps(_mm_castsi128_ps(_mm_add_epi32(n, counts(0)))) != 0) {
+            too_many = true;
+            return best;
+        }
     }
     const __m128 valid = _mm_castsi128_ps(
         _mm_set_epi32(0, m.valid[2] ? -1 : 0, m.valid[1] ? -1 : 0, m.valid[0] ? -1 : 0));
@@ -553,25 +562,20 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
         best_left = _mm_or_si128(_mm_and_si128(takei, n), _mm_andnot_si128(takei, best_left));
         found = _mm_or_ps(found, take);
     }
-    alignas(16) float sums[4];
+    // Across axes: the lowest cost, the lowest axis on a tie (the sums are
+    // finite: measures of at most 3 times counts).
+    if (_mm_movemask_ps(found) == 0) return best;
+    const __m128 sums = _mm_or_ps(_mm_and_ps(found, best_sum), _mm_andnot_ps(found, simd::pos_inf()));
+    __m128 low = _mm_min_ps(sums, _mm_shuffle_ps(sums, sums, _MM_SHUFFLE(2, 3, 0, 1)));
+    low = _mm_min_ps(low, _mm_shuffle_ps(low, low, _MM_SHUFFLE(1, 0, 3, 2)));  // the minimum in every lane
+    const int a = std::countr_zero(unsigned(_mm_movemask_ps(_mm_and_ps(found, _mm_cmpeq_ps(sums, low)))));
     alignas(16) int32_t idx[4], left[4];
-    _mm_store_ps(sums, best_sum);
     _mm_store_si128(reinterpret_cast<__m128i*>(idx), best_index);
     _mm_store_si128(reinterpret_cast<__m128i*>(left), best_left);
-    const int found_mask = _mm_movemask_ps(found);
-    float best_total = 0.0f;
-    // Across axes: the lowest cost, the lowest axis on a tie.
-    for (int a = 0; a < 3; ++a) {
-        if (!((found_mask >> a) & 1)) continue;
-        if (!best.found() || sums[a] < best_total) {
-            best.axis = a;
-            best.index = uint32_t(idx[a]);
-            best.left_count = uint32_t(left[a]);
-            best_total = sums[a];
-        }
-    }
-    if (best.found())
-        best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(best_total) / double(parent);
+    best.axis = a;
+    best.index = uint32_t(idx[a]);
+    best.left_count = uint32_t(left[a]);
+    best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm_cvtss_f32(low)) / double(parent);
     return best;
 }
 }  // namespace detail
@@ -582,12 +586,22 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
 // have a fixed trip count. (The 4-bin case with partition_binned(): the
 // sequential build took 0.97x as long on the 1M sphere and 0.95x on
 // dragon_vrip_res2, medians of 8 alternated runs, 6% fewer instructions.)
-inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt) {
+namespace detail {
+template <uint32_t Fixed>
+[[gnu::always_inline]] inline Split evaluate_fixed(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt) {
+    bool too_many = false;
+    const Split s = evaluate_sweeps<Fixed, false>(bins, m, node_bounds, opt, too_many);
+    return too_many ? evaluate_sweeps<Fixed, true>(bins, m, node_bounds, opt, too_many) : s;
+}
+}  // namespace detail
+
+[[gnu::always_inline]] inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
+                                             const BuildOptions& opt) {
     switch (m.bins) {
-        case 4: return detail::evaluate_sweeps<4>(bins, m, node_bounds, opt);
-        case 8: return detail::evaluate_sweeps<8>(bins, m, node_bounds, opt);
-        case 16: return detail::evaluate_sweeps<16>(bins, m, node_bounds, opt);
-        default: return detail::evaluate_sweeps<0>(bins, m, node_bounds, opt);
+        case 4: return detail::evaluate_fixed<4>(bins, m, node_bounds, opt);
+        case 8: return detail::evaluate_fixed<8>(bins, m, node_bounds, opt);
+        case 16: return detail::evaluate_fixed<16>(bins, m, node_bounds, opt);
+        default: return detail::evaluate_fixed<0>(bins, m, node_bounds, opt);
     }
 }
 

@@ -544,8 +544,8 @@ TEST(KernelEvaluate, FourBinSweepsMatchTheGeneralOnes) {
         const BinMapper m = BinMapper::make(t.cbounds, 4);
         if (!m.any_valid()) continue;
         const auto bins = binned(refs, 0, n, m);
-        const Split a = canopy::detail::evaluate_sweeps<4>(*bins, m, t.bounds, opt);
-        const Split b = canopy::detail::evaluate_sweeps<0>(*bins, m, t.bounds, opt);
+        const Split a = canopy::detail::evaluate_fixed<4>(*bins, m, t.bounds, opt);
+        const Split b = canopy::detail::evaluate_fixed<0>(*bins, m, t.bounds, opt);
         ASSERT_EQ(a.axis, b.axis) << seed;
         EXPECT_EQ(a.index, b.index) << seed;
         EXPECT_EQ(a.left_count, b.left_count) << seed;
@@ -1450,6 +1450,58 @@ TEST(KernelLeafByBound, NeverContradictsTheEvaluation) {
     }
     EXPECT_GT(bound_leaves, 1000u);
     EXPECT_GT(evaluated_only, 100u);
+}
+
+TEST(KernelEvaluate, NodesOfAtLeast2To31PrimitivesUseTheUnsignedConversion) {
+    // Counts of a node of 2^31 primitives or more do not fit the signed
+    // conversion the sweeps use first; evaluate() must notice (from the
+    // sweep's total) and sweep again with the unsigned one. The bins of a
+    // small node are given counts that sum past 2^31: the result must be the
+    // unsigned sweeps', and the signed sweeps must have reported it.
+    const BuildOptions opt;
+    uint32_t checked = 0;
+    for (uint32_t seed = 0; seed < 60; ++seed) {
+        const uint32_t n = 8 + seed % 40;
+        const std::vector<PrimRef> refs = random_refs(n, 9100 + seed, 10.0f, 1.0f);
+        const NodeTask t = task_of(refs, 0, n);
+        for (const uint32_t nb : {4u, 8u, 16u, 32u}) {
+            const BinMapper m = BinMapper::make(t.cbounds, nb);
+            if (!m.any_valid()) continue;
+            auto bins = binned(refs, 0, n, m);
+            // Scale every count so the node holds about 2^31 + 2^30 primitives.
+            const uint32_t scale = uint32_t((uint64_t(3) << 30) / n);
+            for (int a = 0; a < 3; ++a)
+                for (uint32_t b = 0; b < nb; ++b) bins->counts[a][b] *= scale;
+            uint64_t total = 0;
+            for (uint32_t b = 0; b < nb; ++b) total += bins->counts[m.valid[0] ? 0 : m.valid[1] ? 1 : 2][b];
+            ASSERT_GE(total, uint64_t(1) << 31);
+            bool too_many = false;
+            canopy::detail::evaluate_sweeps<0, false>(*bins, m, t.bounds, opt, too_many);
+            EXPECT_TRUE(too_many) << seed << " " << nb;
+            const Split u = canopy::detail::evaluate_sweeps<0, true>(*bins, m, t.bounds, opt, too_many);
+            const Split e = canopy::evaluate(*bins, m, t.bounds, opt);
+            ASSERT_EQ(e.axis, u.axis) << seed << " " << nb;
+            EXPECT_EQ(e.index, u.index);
+            EXPECT_EQ(e.left_count, u.left_count);
+            EXPECT_EQ(e.cost, u.cost);
+            // The best split's cost, recomputed in double from the bins.
+            if (u.found() && u.axis < 3) {
+                Box l, r;
+                uint64_t nl = 0, nr = 0;
+                for (uint32_t b = 0; b < nb; ++b) {
+                    Box& side = b < u.index ? l : r;
+                    side.extend(bins->box(u.axis, b));
+                    (b < u.index ? nl : nr) += bins->count(u.axis, b);
+                }
+                EXPECT_EQ(uint64_t(u.left_count), nl);
+                const double expect = 1.0 + (l.half_area() * double(nl) + r.half_area() * double(nr)) /
+                                                t.bounds.half_area();
+                EXPECT_NEAR(u.cost, expect, expect * 1e-5) << seed << " " << nb;
+                ++checked;
+            }
+        }
+    }
+    EXPECT_GT(checked, 100u);
 }
 
 TEST(KernelSimd, CountsConvertAsFloatOfUint32) {
