@@ -241,6 +241,7 @@ struct BinMapper {
     std::array<bool, 3> valid{false, false, false};  // axis can be split
     __m128 origin4 = _mm_setzero_ps(), scale4 = _mm_setzero_ps(), last4 = _mm_setzero_ps();
     __m128 prescale4 = _mm_set1_ps(1.0f);
+    bool prescaled = false;  // some prescale is not 1 (then bin() takes its slower loop)
 
     // scale = bins / extent: the largest centroid maps to `bins` and the
     // clamp puts it in the last bin (so every bin is used, for any bin
@@ -295,6 +296,7 @@ struct BinMapper {
             if (std::isfinite(sf) && sf > 0.0f) m.scale[a] = sf;
         }
         m.prescale4 = simd::vec(m.prescale);
+        m.prescaled = m.prescale != Vec3(1.0f);
         m.scale4 = simd::vec(m.scale);
         m.finish(simd::vec(cbounds.hi));
         return m;
@@ -325,8 +327,13 @@ struct BinMapper {
     // The bin of a centroid on each axis: floor of (c - origin) * scale,
     // clamped to [0, bins - 1] before the conversion (so no out-of-range
     // float-to-int conversion can happen, even for an infinite product).
+    // Prescaled = false leaves out the multiplication by prescale4, which is
+    // exact and changes nothing when every prescale is 1 (!prescaled).
+    template <bool Prescaled = true>
     __m128i indices4(__m128 c) const {
-        __m128 f = _mm_mul_ps(_mm_mul_ps(_mm_sub_ps(c, origin4), prescale4), scale4);
+        __m128 f = _mm_sub_ps(c, origin4);
+        if constexpr (Prescaled) f = _mm_mul_ps(f, prescale4);
+        f = _mm_mul_ps(f, scale4);
         f = _mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), last4);
         return _mm_cvttps_epi32(f);
     }
@@ -410,8 +417,9 @@ inline constexpr uint32_t kTwoBinSetsMin = 256;
 
 namespace detail {
 
-// bin() over blocks of records; Two: every other record into out.odd.
-template <bool Two>
+// bin() over blocks of records; Two: every other record into out.odd;
+// Pre: the mapping's prescale is applied (see BinMapper::indices4).
+template <bool Two, bool Pre>
 inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
     int32_t (*k)[4] = out.index;  // the indices of the current block
     int axes[3], na = 0;
@@ -431,7 +439,7 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         const PrimRef* r = refs + b0;
         for (uint32_t i = 0; i < n; ++i)
             _mm_store_si128(reinterpret_cast<__m128i*>(k[i]),
-                            m.indices4(simd::centroid(simd::lo(r[i]), simd::hi(r[i]))));
+                            m.template indices4<Pre>(simd::centroid(simd::lo(r[i]), simd::hi(r[i]))));
         if constexpr (Two) {
             uint32_t i = 0;
             for (; i + 1 < n; i += 2) {
@@ -456,20 +464,33 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
     }
 }
 
+inline bool two_bin_sets(const BinMapper& m, uint32_t begin, uint32_t end) {
+    return m.valid_count() == 3 && end - begin >= kTwoBinSetsMin;
+}
+
 // Out of line, so that bin() stays small enough to inline into run_node()
 // for the many small nodes.
-[[gnu::noinline]] inline void bin_two_sets(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m,
-                                           BinSet& out) {
+template <bool Pre>
+[[gnu::noinline]] void bin_two_sets(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m,
+                                    BinSet& out) {
     out.odd.clear(m.bins);
-    bin_blocks<true>(refs, begin, end, m, out);
+    bin_blocks<true, Pre>(refs, begin, end, m, out);
     out.merge(out.odd, m.bins);
+}
+
+// Nodes whose centroid extent is below 2^-64 on some axis (prescaled).
+[[gnu::noinline]] inline void bin_prescaled(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m,
+                                            BinSet& out) {
+    if (two_bin_sets(m, begin, end)) return bin_two_sets<true>(refs, begin, end, m, out);
+    bin_blocks<false, true>(refs, begin, end, m, out);
 }
 
 }  // namespace detail
 
 inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
-    if (m.valid_count() == 3 && end - begin >= kTwoBinSetsMin) return detail::bin_two_sets(refs, begin, end, m, out);
-    detail::bin_blocks<false>(refs, begin, end, m, out);
+    if (m.prescaled) return detail::bin_prescaled(refs, begin, end, m, out);
+    if (detail::two_bin_sets(m, begin, end)) return detail::bin_two_sets<false>(refs, begin, end, m, out);
+    detail::bin_blocks<false, false>(refs, begin, end, m, out);
 }
 
 // The best split found by evaluate() (or by the size split, see below).

@@ -338,6 +338,10 @@ TEST(KernelBinMapper, FastMakeMatchesTheGeneralOne) {
         EXPECT_EQ(std::memcmp(o4, go4, 16), 0);
         EXPECT_EQ(std::memcmp(l4, gl4, 16), 0);
         EXPECT_EQ(f.bins, g.bins);
+        EXPECT_EQ(f.prescaled, g.prescaled);
+        // prescaled says whether some prescale is not 1 (bin() then keeps
+        // the multiplication by it).
+        EXPECT_EQ(g.prescaled, g.prescale[0] != 1.0f || g.prescale[1] != 1.0f || g.prescale[2] != 1.0f);
     };
     std::mt19937 rng(7);
     std::uniform_real_distribution<float> u(-1.0f, 1.0f);
@@ -409,14 +413,19 @@ TEST(KernelBin, EightPrimitivesAlongX) {
 
 TEST(KernelBin, CountsAndBoxesMatchTheMapping) {
     // The whole range takes bin()'s two-set path, [0, 123) the one-set path
-    // and [123, n) the two-set path with an odd count.
+    // and [123, n) the two-set path with an odd count; at unit scale and
+    // at 2^-80, where every extent is below 2^-64 and the mapping prescales
+    // (bin()'s other loops).
     constexpr uint32_t n = 500;
     static_assert(n - 123 >= canopy::kTwoBinSetsMin && 123 < canopy::kTwoBinSetsMin && (n - 123) % 2 == 1);
-    const std::vector<PrimRef> refs = random_refs(n, 5);
-    const Bounds b = bounds_of(refs.data(), 0, n);
-    for (uint32_t nb : {2u, 7u, 16u, 256u}) {
+    const std::pair<float, uint32_t> cases[] = {{1.0f, 2}, {1.0f, 7}, {1.0f, 16}, {1.0f, 256},
+                                                {0x1p-80f, 2}, {0x1p-80f, 7}, {0x1p-80f, 16}, {0x1p-80f, 256}};
+    for (const auto& [unit, nb] : cases) {
+        const std::vector<PrimRef> refs = random_refs(n, 5, 100.0f * unit, 2.0f * unit);
+        const Bounds b = bounds_of(refs.data(), 0, n);
         const BinMapper m = BinMapper::make(b.cbounds, nb);
         ASSERT_TRUE(m.valid[0] && m.valid[1] && m.valid[2]);
+        ASSERT_EQ(m.prescaled, unit != 1.0f);
         const auto bins = binned(refs, 0, n, m);
         for (int a = 0; a < 3; ++a) {
             uint32_t total = 0;
