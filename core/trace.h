@@ -91,17 +91,21 @@ public:
         span_ = TraceSpan{log_->now_ns(), 0, worker, 0, t.begin, t.size(), t.parent_begin,
                           static_cast<uint8_t>(t.depth), t.rights, static_cast<uint8_t>(t.is_right), kind};
     }
+    // Untraced (the common case) it is one test, inlined; GCC had kept the
+    // whole destructor out of line, a call per node.
     ~TraceScope() {
-        if (!log_) return;
-        span_.end_ns = log_->now_ns();
-        log_->add(span_);
+        if (log_) close();
     }
     TraceScope(const TraceScope&) = delete;
     TraceScope& operator=(const TraceScope&) = delete;
 
 private:
+    [[gnu::noinline]] void close() {
+        span_.end_ns = log_->now_ns();
+        log_->add(span_);
+    }
     TraceLog* log_;
-    TraceSpan span_{};
+    TraceSpan span_;  // set when log_ is (not zeroed per node otherwise)
 };
 
 // Writes the Chrome trace JSON. Throws canopy::Error when the file cannot
