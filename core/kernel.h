@@ -546,7 +546,7 @@ namespace detail {
 // node of 2^31 primitives or more (Huge) needs the unsigned one; that is
 // found after the sweeps, from the node's count (the sweep's total), and the
 // sweeps are then run again with it. (Summing the counts first, to choose
-// before sweeping, was 2% of the cow's build instructions.)
+// before sweeping, was about 1% of the cow's build instructions.)
 template <uint32_t Fixed, bool Huge>
 Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt,
                       bool& too_many) {
@@ -620,6 +620,15 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm_cvtss_f32(low)) / double(parent);
     return best;
 }
+// The sweeps with the signed count conversion, again with the unsigned one
+// for a node of 2^31 primitives or more.
+template <uint32_t Fixed>
+[[gnu::always_inline]] inline Split evaluate_fixed(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
+                                                   const BuildOptions& opt) {
+    bool too_many = false;
+    const Split s = evaluate_sweeps<Fixed, false>(bins, m, node_bounds, opt, too_many);
+    return too_many ? evaluate_sweeps<Fixed, true>(bins, m, node_bounds, opt, too_many) : s;
+}
 }  // namespace detail
 
 // Nodes of up to 64 primitives, almost all of the nodes evaluated, have 4,
@@ -628,15 +637,6 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
 // have a fixed trip count. (The 4-bin case with partition_binned(): the
 // sequential build took 0.97x as long on the 1M sphere and 0.95x on
 // dragon_vrip_res2, medians of 8 alternated runs, 6% fewer instructions.)
-namespace detail {
-template <uint32_t Fixed>
-[[gnu::always_inline]] inline Split evaluate_fixed(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt) {
-    bool too_many = false;
-    const Split s = evaluate_sweeps<Fixed, false>(bins, m, node_bounds, opt, too_many);
-    return too_many ? evaluate_sweeps<Fixed, true>(bins, m, node_bounds, opt, too_many) : s;
-}
-}  // namespace detail
-
 [[gnu::always_inline]] inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
                                              const BuildOptions& opt) {
     switch (m.bins) {
