@@ -560,9 +560,23 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     if (!(parent > 0.0f)) return best;
     const uint32_t nb = Fixed ? Fixed : m.bins;
     // The three axes are swept together, one lane each (lane 3 unused).
-    const auto counts = [&](uint32_t b) {
-        return _mm_set_epi32(0, int32_t(bins.counts[2][b]), int32_t(bins.counts[1][b]), int32_t(bins.counts[0][b]));
-    };
+    // Bin b's counts as one vector, transposed four bins at a time (clear()
+    // zeroes counts in groups of four, so a group past the last bin reads
+    // zeros).
+    static_assert(kMaxBins % 4 == 0 && (Fixed % 4 == 0));
+    __m128i count_rows[Fixed ? Fixed : kMaxBins];
+    for (uint32_t b = 0; b < nb; b += 4) {
+        const auto row = [&](int a) {
+            return _mm_castsi128_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(bins.counts[a] + b)));
+        };
+        __m128 x = row(0), y = row(1), z = row(2), w = _mm_setzero_ps();
+        _MM_TRANSPOSE4_PS(x, y, z, w);
+        count_rows[b] = _mm_castps_si128(x);
+        count_rows[b + 1] = _mm_castps_si128(y);
+        count_rows[b + 2] = _mm_castps_si128(z);
+        count_rows[b + 3] = _mm_castps_si128(w);
+    }
+    const auto counts = [&](uint32_t b) { return count_rows[b]; };
     const __m128i zero = _mm_setzero_si128();
     const auto to_float = [](__m128i c) { return Huge ? simd::to_float(c) : _mm_cvtepi32_ps(c); };
     __m128 right_cost[Fixed ? Fixed : kMaxBins];  // A_R n_R of the split before bin b; -1: empty
