@@ -201,18 +201,12 @@ struct Measure {
         const int biased = std::clamp(127 - e, 1, 253);
         scale = _mm_set1_ps(std::bit_cast<float>(uint32_t(biased) << 23));
     }
-    // The measure of three boxes at once, lane a for box a (lane 3: 0);
-    // lane for lane the same operations as operator().
-    [[gnu::always_inline]] __m128 three(const Box4 (&b)[3]) const {
-        return of_extents(_mm_sub_ps(_mm_mul_ps(b[0].hi, scale), _mm_mul_ps(b[0].lo, scale)),
-                          _mm_sub_ps(_mm_mul_ps(b[1].hi, scale), _mm_mul_ps(b[1].lo, scale)),
-                          _mm_sub_ps(_mm_mul_ps(b[2].hi, scale), _mm_mul_ps(b[2].lo, scale)), false);
-    }
-    // The same for (lo, -hi) boxes, from their negated extents lo * s +
-    // (-hi) * s, which are exactly -(hi * s - lo * s) (a zero extent comes
-    // out +0 either way): three operations per box instead of five, and the
-    // same measure (products of two negated extents are the products of
-    // the extents; a length is negated back).
+    // The measure of three (lo, -hi) boxes at once, lane a for box a (lane
+    // 3: 0); lane for lane the same value as operator(). It starts from the
+    // negated extents lo * s + (-hi) * s, which are exactly -(hi * s - lo * s)
+    // (a zero extent comes out +0 either way): three operations per box
+    // instead of five. Products of two negated extents are the products of
+    // the extents; a length is negated back.
     [[gnu::always_inline]] __m128 three(const MinBox (&b)[3]) const {
 #if defined(__AVX__)
         const __m256 s8 = _mm256_set_m128(scale, scale);
@@ -225,16 +219,9 @@ struct Measure {
             return _mm_add_ps(_mm_mul_ps(m.lo, scale), _mm_mul_ps(m.nhi, scale));
         };
 #endif
-        return of_extents(neg_extent(b[0]), neg_extent(b[1]), neg_extent(b[2]), true);
-    }
-    // From the (scaled) extent rows of three boxes, or their negations.
-    [[gnu::always_inline]] __m128 of_extents(__m128 x, __m128 y, __m128 z, bool negated) const {
-        __m128 w = _mm_setzero_ps();
-        _MM_TRANSPOSE4_PS(x, y, z, w);  // now x = (dx of box 0, 1, 2, 0), y = dys, z = dzs
-        if (use_length) {
-            const __m128 sum = _mm_add_ps(_mm_add_ps(x, y), z);
-            return negated ? negate(sum) : sum;
-        }
+        __m128 x = neg_extent(b[0]), y = neg_extent(b[1]), z = neg_extent(b[2]), w = _mm_setzero_ps();
+        _MM_TRANSPOSE4_PS(x, y, z, w);  // now x = (-dx of box 0, 1, 2, 0), y = -dys, z = -dzs
+        if (use_length) return negate(_mm_add_ps(_mm_add_ps(x, y), z));
         return _mm_add_ps(_mm_add_ps(_mm_mul_ps(x, y), _mm_mul_ps(y, z)), _mm_mul_ps(z, x));
     }
     float operator()(const Box4& b) const {
