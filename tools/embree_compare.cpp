@@ -93,7 +93,7 @@ Bvh convert(const TreeNode* root, const Box& root_box, size_t primitives) {
         const TreeNode* node;
         size_t slot;
     };
-    bvh.nodes.push_back(Node{});
+    bvh.nodes.emplace_back();  // every field is set below
     bvh.nodes[0].set_box(root_box);
     std::vector<Item> stack{{root, 0}};
     while (!stack.empty()) {
