@@ -364,14 +364,16 @@ struct BinArrays {
     Box box(int axis, uint32_t b) const { return bounds[axis][b].box4().box(); }
     uint32_t count(int axis, uint32_t b) const { return counts[axis][b]; }
     void clear(uint32_t bins) {
-        // Counts four at a time (kMaxBins is a multiple of 4): most nodes have
-        // 4 bins, and std::fill_n became a memset call per axis.
+        // Four bins at a time, up to the next multiple of 4 (kMaxBins is one):
+        // most nodes have 4 bins; std::fill_n became a memset call per axis
+        // for the counts and a loop of one box per turn for the boxes.
         static_assert(kMaxBins % 4 == 0);
-        for (int a = 0; a < 3; ++a) {
-            std::fill_n(bounds[a], bins, simd::MinBox{});
-            for (uint32_t b = 0; b < bins; b += 4)
+        const simd::MinBox empty{};
+        for (int a = 0; a < 3; ++a)
+            for (uint32_t b = 0; b < bins; b += 4) {
+                bounds[a][b] = bounds[a][b + 1] = bounds[a][b + 2] = bounds[a][b + 3] = empty;
                 _mm_storeu_si128(reinterpret_cast<__m128i*>(counts[a] + b), _mm_setzero_si128());
-        }
+            }
     }
     // Exact merge (min/max and integer sums): order-independent.
     void merge(const BinArrays& o, uint32_t bins) {
