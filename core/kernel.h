@@ -120,6 +120,22 @@ inline Vec3 vec3(__m128 v) {
     _mm_store_ps(f, v);
     return {f[0], f[1], f[2]};
 }
+// Lane by lane: a where mask is all ones, b where it is all zeros (masks
+// from comparisons only).
+inline __m128 select(__m128 mask, __m128 a, __m128 b) {
+#if defined(__SSE4_1__)
+    return _mm_blendv_ps(b, a, mask);
+#else
+    return _mm_or_ps(_mm_and_ps(mask, a), _mm_andnot_ps(mask, b));
+#endif
+}
+inline __m128i select(__m128i mask, __m128i a, __m128i b) {
+#if defined(__SSE4_1__)
+    return _mm_blendv_epi8(b, a, mask);
+#else
+    return _mm_or_si128(_mm_and_si128(mask, a), _mm_andnot_si128(mask, b));
+#endif
+}
 // uint32 lanes to float, rounded as float(uint32_t) rounds. Lanes of 2^31 or
 // more are halved with the lost bit kept as a sticky bit (round to odd),
 // converted, and doubled: one correct rounding.
@@ -128,7 +144,7 @@ inline __m128 to_float(__m128i n) {
     const __m128i halved = _mm_or_si128(_mm_srli_epi32(n, 1), _mm_and_si128(n, _mm_set1_epi32(1)));
     const __m128 big = _mm_cvtepi32_ps(halved);
     const __m128 high = _mm_castsi128_ps(_mm_srai_epi32(n, 31));
-    return _mm_or_ps(_mm_andnot_ps(high, direct), _mm_and_ps(high, _mm_add_ps(big, big)));
+    return select(high, _mm_add_ps(big, big), direct);
 }
 inline __m128 pos_inf() { return _mm_set1_ps(std::numeric_limits<float>::infinity()); }
 inline __m128 neg_inf() { return _mm_set1_ps(-std::numeric_limits<float>::infinity()); }
@@ -576,7 +592,7 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
         n = _mm_add_epi32(n, counts(b));
         const __m128 empty = _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero));
         const __m128 cost = _mm_mul_ps(measure.three(acc), to_float(n));
-        right_cost[b] = _mm_or_ps(_mm_and_ps(empty, _mm_set1_ps(-1.0f)), _mm_andnot_ps(empty, cost));
+        right_cost[b] = simd::select(empty, _mm_set1_ps(-1.0f), cost);
     }
     if constexpr (!Huge) {
         // Every lane's total is the node's count (or 0 on an axis not binned).
@@ -602,15 +618,15 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
         const __m128 ok = _mm_andnot_ps(left_empty, _mm_and_ps(valid, _mm_cmpge_ps(right_cost[s], _mm_setzero_ps())));
         const __m128 take = _mm_and_ps(ok, _mm_or_ps(_mm_andnot_ps(found, ok), _mm_cmplt_ps(sum, best_sum)));
         const __m128i takei = _mm_castps_si128(take);
-        best_sum = _mm_or_ps(_mm_and_ps(take, sum), _mm_andnot_ps(take, best_sum));
-        best_index = _mm_or_si128(_mm_and_si128(takei, _mm_set1_epi32(int32_t(s))), _mm_andnot_si128(takei, best_index));
-        best_left = _mm_or_si128(_mm_and_si128(takei, n), _mm_andnot_si128(takei, best_left));
+        best_sum = simd::select(take, sum, best_sum);
+        best_index = simd::select(takei, _mm_set1_epi32(int32_t(s)), best_index);
+        best_left = simd::select(takei, n, best_left);
         found = _mm_or_ps(found, take);
     }
     // Across axes: the lowest cost, the lowest axis on a tie (the sums are
     // finite: measures of at most 3 times counts).
     if (_mm_movemask_ps(found) == 0) return best;
-    const __m128 sums = _mm_or_ps(_mm_and_ps(found, best_sum), _mm_andnot_ps(found, simd::pos_inf()));
+    const __m128 sums = simd::select(found, best_sum, simd::pos_inf());
     __m128 low = _mm_min_ps(sums, _mm_shuffle_ps(sums, sums, _MM_SHUFFLE(2, 3, 0, 1)));
     low = _mm_min_ps(low, _mm_shuffle_ps(low, low, _MM_SHUFFLE(1, 0, 3, 2)));  // the minimum in every lane
     const int a = std::countr_zero(unsigned(_mm_movemask_ps(_mm_and_ps(found, _mm_cmpeq_ps(sums, low)))));
@@ -833,7 +849,9 @@ inline float split_threshold(const BinMapper& m, int axis, uint32_t k) {
 
 // The side test of a plane split in registers: the centroid's bin indices on
 // all axes compared with the split index at once, the split axis's lane
-// taken from the sign mask (no trip through memory).
+// taken from the sign mask (no trip through memory). Pre: the mapping's
+// prescale is applied (needed only when m.prescaled, see BinMapper).
+template <bool Pre = true>
 struct SideIndexTest {
     const BinMapper& m;
     __m128i index4;
@@ -841,7 +859,7 @@ struct SideIndexTest {
     SideIndexTest(const BinMapper& mapper, const Split& s)
         : m(mapper), index4(_mm_set1_epi32(int32_t(s.index))), axis(s.axis) {}
     bool left(__m128 c, __m128 /*hi_area*/) const {
-        const __m128i lt = _mm_cmplt_epi32(m.indices4(c), index4);
+        const __m128i lt = _mm_cmplt_epi32(m.template indices4<Pre>(c), index4);
         return (_mm_movemask_ps(_mm_castsi128_ps(lt)) >> axis) & 1;
     }
 };
@@ -1019,7 +1037,9 @@ PartitionResult partition_with(PrimRef* refs, uint32_t b, uint32_t mid, uint32_t
 inline PartitionResult partition(PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, const Split& s) {
     const uint32_t mid = begin + s.left_count;
     if (s.by_size()) return partition_by_size(refs, begin, mid, end, s);
-    if (end - begin < kThresholdTestMin) return partition_with(refs, begin, mid, end, SideIndexTest(m, s));
+    if (end - begin < kThresholdTestMin)
+        return m.prescaled ? partition_with(refs, begin, mid, end, SideIndexTest<true>(m, s))
+                           : partition_with(refs, begin, mid, end, SideIndexTest<false>(m, s));
     return partition_with(refs, begin, mid, end, SideTest(m, s));
 }
 

@@ -186,6 +186,25 @@ TEST(KernelBinsFor, CountsAbove2To31) {
     EXPECT_EQ(canopy::bins_for(big, 16), 64u);  // four times, as every node of 2^19 or more
 }
 
+TEST(KernelSimd, SelectTakesEachLaneFromTheMasksChoice) {
+    namespace simd = canopy::simd;
+    const __m128 a = _mm_set_ps(4.0f, 3.0f, 2.0f, 1.0f), b = _mm_set_ps(-4.0f, -3.0f, -2.0f, -1.0f);
+    const __m128 mask = _mm_cmpgt_ps(_mm_set_ps(1.0f, 0.0f, 1.0f, 0.0f), _mm_setzero_ps());  // lanes 1 and 3
+    alignas(16) float f[4];
+    _mm_store_ps(f, simd::select(mask, a, b));
+    EXPECT_EQ(f[0], -1.0f);
+    EXPECT_EQ(f[1], 2.0f);
+    EXPECT_EQ(f[2], -3.0f);
+    EXPECT_EQ(f[3], 4.0f);
+    alignas(16) int32_t k[4];
+    _mm_store_si128(reinterpret_cast<__m128i*>(k),
+                    simd::select(_mm_castps_si128(mask), _mm_set_epi32(40, 30, 20, 10), _mm_set_epi32(-4, -3, -2, -1)));
+    EXPECT_EQ(k[0], -1);
+    EXPECT_EQ(k[1], 20);
+    EXPECT_EQ(k[2], -3);
+    EXPECT_EQ(k[3], 40);
+}
+
 // ---------------------------------------------------------------- BinMapper
 
 TEST(KernelBinMapper, ZeroExtentAxisIsNotValid) {
@@ -698,7 +717,7 @@ TEST(KernelPartition, ThresholdSideTestMatchesTheBinIndex) {
                 EXPECT_GE(bin_index(m, at, axis), k) << "axis " << axis << " k " << k;
                 EXPECT_LT(bin_index(m, before, axis), k) << "axis " << axis << " k " << k;
                 const canopy::SideTest by_threshold(m, s);
-                const canopy::SideIndexTest by_index(m, s);
+                const canopy::SideIndexTest<> by_index(m, s);
                 std::uniform_real_distribution<float> u(0.0f, 1.0f);
                 for (int i = 0; i < 40; ++i) {
                     Vec3 c = box.lo;
@@ -709,6 +728,10 @@ TEST(KernelPartition, ThresholdSideTestMatchesTheBinIndex) {
                     const __m128 c4 = canopy::simd::vec(c);
                     ASSERT_EQ(by_threshold.left(c4, c4), by_index.left(c4, c4))
                         << "axis " << axis << " k " << k << " c " << c[axis] << " t " << t;
+                    if (!m.prescaled) {  // what partition() uses then
+                        const canopy::SideIndexTest<false> plain(m, s);
+                        ASSERT_EQ(plain.left(c4, c4), by_index.left(c4, c4)) << "axis " << axis << " k " << k;
+                    }
                     ++checked;
                 }
             });
