@@ -12,21 +12,50 @@
 #include "trace.h"
 
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 
 namespace canopy {
 
-// Builds the subtree of `root`, appending its nodes to `nodes`: the root
-// first, then each child pair as its parent splits, the left child processed
-// before the right one (the canonical layout of the subtree by
-// construction). Inner nodes' child indices are relative to where the
-// subtree starts (nodes.size() on entry), so a whole tree built from an
-// empty vector has absolute indices. Nodes above the task cutoff are traced
-// on `track`. Returns the number of leaves.
-inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root, std::vector<Node>& nodes,
-                                  BinSet& bins, SkipCounts& skip, uint32_t track) {
-    const size_t base = nodes.size();
+// Where build_depth_first puts a subtree's nodes. `Slot` names one node;
+// root() takes the first slot and pair() the next two (a pair's two slots
+// follow each other in the subtree's numbering, which starts at 0 with the
+// root), number(slot) is a slot's number and at(slot) its node. Slots stay
+// valid while the subtree grows.
+
+// The sequential driver's node array: one vector that grows by doubling, so
+// a slot is an index (relative to where the subtree starts).
+struct GrowingNodes {
+    std::vector<Node>& v;
+    size_t base;  // the subtree's first node
+    using Slot = uint32_t;
+    explicit GrowingNodes(std::vector<Node>& nodes) : v(nodes), base(nodes.size()) {}
+    Slot root() {
+        v.emplace_back();
+        return 0;
+    }
+    std::array<Slot, 2> pair() {
+        const Slot c = static_cast<Slot>(v.size() - base);
+        if (v.capacity() - v.size() < 2) grow_on_huge_pages(v);
+        v.emplace_back();
+        v.emplace_back();
+        return {c, c + 1};
+    }
+    static uint32_t number(Slot s) { return s; }
+    Node& at(Slot s) { return v[base + s]; }
+};
+
+// Builds the subtree of `root` into `out` (see above): the root first, then
+// each child pair as its parent splits, the left child processed before the
+// right one (the canonical layout of the subtree by construction). Inner
+// nodes' child indices are the first child's number in the subtree, so a
+// whole tree built into an empty vector has absolute indices. Nodes above
+// the task cutoff are traced on `track`. Returns the number of leaves.
+template <class Out>
+uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root, Out& out, BinSet& bins,
+                           SkipCounts& skip, uint32_t track) {
+    using Slot = typename Out::Slot;
     const uint32_t cutoff = ctx.options->tuning.task_cutoff;
     // Pending right children: one per level at most, and depth <= kMaxDepthCap.
     // A left child is processed straight from where run_node() wrote it (the
@@ -35,12 +64,11 @@ inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root
     // (pushing and popping both children's 72-byte tasks made the cow's
     // sequential build run 0.7% more instructions).
     std::array<NodeTask, kMaxDepthCap + 2> stack;
-    std::array<uint32_t, kMaxDepthCap + 2> stack_node;  // relative to base
+    std::array<Slot, kMaxDepthCap + 2> stack_node;
     NodeTask pair[2][2];
     uint32_t top = 0, leaves = 0, turn = 0;
     const NodeTask* task = &root;
-    uint32_t at = 0;  // task's node, relative to base
-    nodes.emplace_back();
+    Slot at = out.root();  // task's node
     for (;;) {
         NodeTask* children = pair[turn];
         bool split;
@@ -48,24 +76,23 @@ inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root
             const TraceScope trace(task->size() < cutoff ? nullptr : ctx.trace, *task, track, TraceSpan::Task);
             split = run_node(ctx, *task, children, bins, skip);
         }
-        Node& node = nodes[base + at];
-        node.set_box(task->bounds);
         if (split) {
-            const uint32_t c = static_cast<uint32_t>(nodes.size() - base);
-            node.index = c;
+            const std::array<Slot, 2> c = out.pair();  // may move a GrowingNodes array: at() after it
+            Node& node = out.at(at);
+            node.set_box(task->bounds);
+            node.index = out.number(c[0]);
             node.count = 0;
-            if (nodes.capacity() - nodes.size() < 2) grow_on_huge_pages(nodes);  // `node` dangles from here
-            nodes.emplace_back();
-            nodes.emplace_back();
             // `task` may be the stack's top slot, which this overwrites: it
             // is not read again.
             stack[top] = children[1];
-            stack_node[top++] = c + 1;
+            stack_node[top++] = c[1];
             task = &children[0];
-            at = c;
+            at = c[0];
             turn ^= 1;
             continue;
         }
+        Node& node = out.at(at);
+        node.set_box(task->bounds);
         node.index = task->begin;
         node.count = task->size();
         ++leaves;
@@ -75,6 +102,13 @@ inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root
         at = stack_node[top];
     }
     return leaves;
+}
+
+// The same into one growing array (the sequential driver's node array).
+inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root, std::vector<Node>& nodes,
+                                  BinSet& bins, SkipCounts& skip, uint32_t track) {
+    GrowingNodes out(nodes);
+    return build_depth_first(ctx, root, out, bins, skip, track);
 }
 
 }  // namespace canopy

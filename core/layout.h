@@ -38,8 +38,10 @@
 #include "memory.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <bit>
+#include <cstddef>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -107,39 +109,60 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
 // A subtree one worker built inline (see the top of this file).
 struct SubtreeBlock {
     NodeRecord root;      // where the subtree's root sits in the tree
-    uint32_t chunk = 0;   // its nodes: the arena's chunks[chunk][first, first + size)
+    uint32_t chunk = 0;   // its nodes: the arena's chunks[chunk] from `first` on, then the
+                          // following chunks from their start (it filled each but its last)
     uint32_t first = 0;
     uint32_t size = 0;
     uint32_t leaves = 0;
 };
 
 // What one worker leaves for the placement.
+//
+// A worker's subtree blocks go one after another into chunks of nodes, and
+// a block that fills a chunk goes on in a new one (ChunkedNodes below), so
+// every chunk but the last ends full, and trim() gives back the last one's
+// unused end before the placement. (Until 2026-12-03 a block needed room
+// for its bound, twice its primitives, in one chunk before it started, so
+// each chunk's end and the last chunk's unused part were waste that
+// depended on which worker built which subtree: the 2-thread peak of
+// dragon_vrip_res2 was 79.5 to 86.9 bytes per triangle.)
 struct PlacementArena {
     std::vector<NodeRecord> records;        // nodes run one at a time
     std::vector<std::vector<Node>> chunks;  // the blocks' nodes, block after block
     std::vector<SubtreeBlock> blocks;
-    size_t chunk_nodes = size_t(1) << 17;   // usual chunk size (4 MiB)
+    size_t chunk_nodes = size_t(1) << 17;   // chunk size (4 MiB)
     std::vector<std::vector<Node>> spare;   // emptied chunks of earlier builds
 
-    // Node storage for a subtree of `primitives` primitives (at most
-    // 2 * primitives - 1 nodes): the last chunk when it has room, else a new
-    // one. Chunks never grow past their reserved size, so nodes are never
-    // copied and a chunk wastes at most one block's worth.
-    std::vector<Node>& chunk_for(uint32_t primitives) {
-        const size_t need = 2 * size_t(primitives);
-        if (chunks.empty() || chunks.back().capacity() - chunks.back().size() < need) {
-            const size_t cap = std::max(chunk_nodes, need);
-            if (!spare.empty() && spare.back().capacity() >= cap) {
-                chunks.push_back(std::move(spare.back()));
-                spare.pop_back();
-            } else {
-                reserve_on_huge_pages(chunks.emplace_back(), cap);
-            }
-        }
+    // The chunk a new block starts in: the last one (ChunkedNodes moves on
+    // when it is full).
+    std::vector<Node>& open_chunk() {
+        if (chunks.empty()) return new_chunk();
         return chunks.back();
     }
+    // A new last chunk, never grown past its capacity, so node addresses in
+    // it stay valid.
+    std::vector<Node>& new_chunk() {
+        const size_t cap = std::max<size_t>(chunk_nodes, 1);
+        std::vector<Node> c;
+        if (!spare.empty() && spare.back().capacity() >= cap) {
+            c = std::move(spare.back());
+            spare.pop_back();
+        } else {
+            reserve_on_huge_pages(c, cap);
+        }
+        return chunks.emplace_back(std::move(c));
+    }
+    // Gives back the unused end of the last chunk (a copy into an array of
+    // the exact size), once no block will be added.
+    void trim() {
+        if (chunks.empty() || chunks.back().capacity() == chunks.back().size()) return;
+        std::vector<Node> exact;
+        reserve_on_huge_pages(exact, chunks.back().size());
+        exact.insert(exact.end(), chunks.back().begin(), chunks.back().end());
+        chunks.back().swap(exact);
+    }
     // Empties the arena for another build; the chunks' memory is kept for
-    // chunk_for() to reuse.
+    // take_chunk() to reuse.
     void reset() {
         records.clear();
         blocks.clear();
@@ -148,7 +171,7 @@ struct PlacementArena {
             spare.push_back(std::move(c));
         }
         chunks.clear();
-        // Largest last, the one chunk_for() looks at.
+        // Largest last, the one new_chunk() looks at.
         std::sort(spare.begin(), spare.end(),
                   [](const std::vector<Node>& a, const std::vector<Node>& b) { return a.capacity() < b.capacity(); });
     }
@@ -157,6 +180,47 @@ struct PlacementArena {
         for (const auto& c : chunks) n += c.size();
         return n;
     }
+
+};
+
+// A worker's subtree block in its arena's chunks, as build_depth_first
+// (core/depth_first.h) fills it: slots are node addresses, which stay valid
+// because chunks never grow; the block starts where the last chunk has room
+// and goes on at the start of a new chunk whenever one is full.
+class ChunkedNodes {
+public:
+    struct Slot {
+        Node* node;
+        uint32_t number;  // in the block
+    };
+    explicit ChunkedNodes(PlacementArena& a) : arena_(a), chunk_(&a.open_chunk()) {}
+
+    Slot root() {
+        const Slot s = next();
+        first_chunk_ = static_cast<uint32_t>(arena_.chunks.size() - 1);
+        first_ = static_cast<uint32_t>(chunk_->size() - 1);
+        return s;
+    }
+    std::array<Slot, 2> pair() {
+        const Slot a = next();
+        return {a, next()};
+    }
+    static uint32_t number(Slot s) { return s.number; }
+    static Node& at(Slot s) { return *s.node; }
+
+    // Where the block starts (after root()), and how many nodes it has.
+    uint32_t first_chunk() const { return first_chunk_; }
+    uint32_t first() const { return first_; }
+    uint32_t size() const { return count_; }
+
+private:
+    Slot next() {
+        if (chunk_->size() == chunk_->capacity()) chunk_ = &arena_.new_chunk();
+        return {&chunk_->emplace_back(), count_++};
+    }
+    PlacementArena& arena_;
+    std::vector<Node>* chunk_;
+    uint32_t first_chunk_ = 0, first_ = 0, count_ = 0;
 };
 
 // L(v) from the pieces that tile the permutation (leaf records and blocks):
@@ -204,18 +268,36 @@ void place_arena(const PlacementArena& arena, const Rank& rank, Node* nodes) {
         }
     }
     for (const SubtreeBlock& b : arena.blocks) {
-        const Node* src = arena.chunks[b.chunk].data() + b.first;
+        // The block's nodes: chunk b.chunk from b.first on, then the next
+        // chunks from their start, as many as it filled.
+        uint32_t k = b.chunk;
+        const Node* src = arena.chunks[k].data() + b.first;
+        size_t left_here = arena.chunks[k].size() - b.first;
         // Block node i >= 1 goes to c + i - 1, c the root's first child slot;
         // an inner node's relative child index j becomes c + j - 1.
         const uint32_t c = src[0].is_leaf() ? 0 : first_child_slot(b.root.depth, rank.rank(b.root.begin), b.root.rights);
         Node root = src[0];
         if (!root.is_leaf()) root.index = c + root.index - 1;
         nodes[canonical_slot(b.root, rank)] = root;
-        Node* dst = nodes + c - 1;
-        for (uint32_t i = 1; i < b.size; ++i) {
-            Node n = src[i];
-            if (!n.is_leaf()) n.index = c + n.index - 1;
-            dst[i] = n;
+        Node* dst = nodes + c;
+        ++src;
+        --left_here;
+        for (uint32_t i = 1; i < b.size;) {
+            if (left_here == 0) {
+                ++k;
+                src = arena.chunks[k].data();
+                left_here = arena.chunks[k].size();
+            }
+            const size_t take = std::min<size_t>(left_here, b.size - i);
+            for (size_t j = 0; j < take; ++j) {
+                Node n = src[j];
+                if (!n.is_leaf()) n.index = c + n.index - 1;
+                dst[j] = n;
+            }
+            src += take;
+            dst += take;
+            left_here -= take;
+            i += static_cast<uint32_t>(take);
         }
     }
 }

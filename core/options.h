@@ -21,6 +21,7 @@ struct SchedulerTuning {
     uint32_t prims_per_thread = 16384;   // fewer primitives per thread: use fewer threads
     uint32_t task_cutoff = 4096;         // smaller nodes run their subtree inline
     uint32_t parallel_node_min = 65536;  // smaller nodes never run team-parallel
+    uint32_t chunk_nodes = 0;            // nodes per chunk of a worker's subtree blocks; 0: from the scene size
 };
 
 struct BuildOptions {

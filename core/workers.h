@@ -32,14 +32,17 @@ struct Workers {
 
     // `count` workers with empty arenas and counters, keeping the memory of
     // earlier builds (bins, record vectors, node chunks). `primitives`: the
-    // build's size, which sets the workers' chunk size for subtree blocks:
-    // about a quarter of a worker's share of the nodes (one node per
-    // primitive is typical), between 1 and 16 MiB, so that chunks waste
-    // little on small scenes and are big enough for huge pages on big ones.
-    void reset(uint32_t count, uint32_t primitives) {
+    // build's size, which sets the workers' chunk size for subtree blocks
+    // unless `chunk_nodes` does: about a sixteenth of a worker's share of
+    // the nodes (one node per primitive is typical), between 256 KiB and
+    // 4 MiB. The unused part of the chunk each worker is filling is held
+    // until the build ends, beside the records, so it is kept small beside
+    // the scene (a quarter of the share, at least 1 MiB, until 2026-12-03).
+    void reset(uint32_t count, uint32_t primitives, uint32_t chunk_nodes = 0) {
         w.resize(count);
-        const size_t share = size_t(primitives) / (4 * size_t(std::max(1u, count)));
-        const size_t chunk = std::clamp<size_t>(share, size_t(1) << 15, size_t(1) << 19);
+        const size_t share = size_t(primitives) / (16 * size_t(std::max(1u, count)));
+        const size_t chunk =
+            chunk_nodes ? chunk_nodes : std::clamp<size_t>(share, size_t(1) << 13, size_t(1) << 17);
         for (uint32_t i = 0; i < count; ++i) {
             w[i].id = i;
             w[i].skip = SkipCounts{};

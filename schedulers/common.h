@@ -63,13 +63,13 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 // as one block in the sequential layout.
 inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
     const TraceScope trace(ctx.trace, root, wk.id, TraceSpan::Inline);
-    std::vector<Node>& nodes = wk.out.chunk_for(root.size());
+    ChunkedNodes out(wk.out);
     SubtreeBlock b;
-    b.chunk = static_cast<uint32_t>(wk.out.chunks.size() - 1);
-    b.first = static_cast<uint32_t>(nodes.size());
-    b.leaves = build_depth_first(ctx, root, nodes, *wk.bins, wk.skip, wk.id);
-    b.size = static_cast<uint32_t>(nodes.size()) - b.first;
-    b.root = NodeRecord::of(root, nodes[b.first].is_leaf());
+    b.leaves = build_depth_first(ctx, root, out, *wk.bins, wk.skip, wk.id);
+    b.chunk = out.first_chunk();
+    b.first = out.first();
+    b.size = out.size();
+    b.root = NodeRecord::of(root, wk.out.chunks[b.chunk][b.first].is_leaf());
     wk.out.blocks.push_back(b);
 }
 
@@ -97,6 +97,12 @@ void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     // allocated, so that it and the workers' blocks are not all held at once
     // (the 1M sphere's peak: 136 bytes per triangle before, see README).
     st.release_records();
+    // Nor the unused end of each worker's last chunk: trimmed before the
+    // final array exists, it is not held beside it (a one-off build's peak
+    // is then the tree twice and the permutation, whichever worker built
+    // what).
+    if (!st.keep_memory)
+        for_each(static_cast<uint32_t>(workers.size()), [&](uint32_t i) { workers[i].out.trim(); });
     std::vector<const PlacementArena*> arenas;
     arenas.reserve(workers.size());
     for (auto& wk : workers.w) {

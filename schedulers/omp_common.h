@@ -81,6 +81,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
                     top.next.push_back(top.kids[0]);
                     top.next.push_back(top.kids[1]);
                 }
+                top.node.reset();  // its bins and marks are not held through the rest of the build
             }
         }
 #pragma omp single
@@ -96,7 +97,7 @@ void omp_build(BuildState& st, uint32_t threads, Body&& body) {
     st.stats.threads_used = threads;
     prepare_parallel(st, OmpLoop{threads});
     Workers& workers = st.workers;
-    workers.reset(threads, st.n);
+    workers.reset(threads, st.n, st.options.tuning.chunk_nodes);
 #pragma omp parallel num_threads(threads)
     {
         body(workers, static_cast<uint32_t>(omp_get_num_threads()));

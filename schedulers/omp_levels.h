@@ -76,6 +76,7 @@ struct OmpLevels {
                             lv.next.push_back(lv.big_kids[0]);
                             lv.next.push_back(lv.big_kids[1]);
                         }
+                        lv.node.reset();  // its bins and marks are not held through the rest of the build
                     }
                 }
                 const size_t count = lv.small.size();

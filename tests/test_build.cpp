@@ -1,6 +1,7 @@
 // Tests of canopy::build<Sequential> (core/build.h, schedulers/sequential.h)
 // and of the arithmetic node placement of core/layout.h against it.
 #include "core/build.h"
+#include "core/depth_first.h"
 #include "core/bvh.h"
 #include "core/error.h"
 #include "core/kernel.h"
@@ -774,7 +775,7 @@ TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
                 if (rng() % 3 == 0) {  // this node's subtree becomes a block
                     canopy::SubtreeBlock blk;
                     blk.root = recs[k];
-                    std::vector<Node>& chunk = a.chunk_for(uint32_t(b.permutation.size()));
+                    std::vector<Node>& chunk = a.open_chunk();
                     blk.chunk = uint32_t(a.chunks.size() - 1);
                     blk.first = uint32_t(chunk.size());
                     blk.size = subtree_size[i];
@@ -810,6 +811,71 @@ TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
             total_blocks += blocks;
         }
         EXPECT_GT(total_blocks, 0u) << "n=" << m.triangle_count();  // the blocks were tested
+    }
+}
+
+TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
+    // Blocks built into chunks of a few nodes (ChunkedNodes): a block that
+    // fills its chunk goes on at the start of a new one, every chunk but the
+    // last ends full, node addresses stay valid, and the placement reads a
+    // block across its chunks. The root runs as a record and its children's
+    // subtrees as two blocks of one arena: the placement must give the
+    // sequential tree bit for bit.
+    const TriangleMesh meshes[] = {random_mesh(500, 5), grid_mesh(9), coincident_mesh(40)};
+    for (const TriangleMesh& m : meshes) {
+        for (const size_t chunk : {size_t(1), size_t(2), size_t(3), size_t(7), size_t(64)}) {
+            BuildOptions opt;
+            const Bvh expected = build(m, opt);
+            const uint32_t n = uint32_t(m.triangle_count());
+            std::vector<canopy::PrimRef> refs(n);
+            const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs.data());
+            ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
+            canopy::NodeTask root;
+            root.begin = 0;
+            root.end = n;
+            root.bounds = s.bounds;
+            root.cbounds = s.cbounds;
+            std::vector<uint32_t> perm(n, ~0u);
+            const canopy::KernelContext ctx{refs.data(), perm.data(), &opt, nullptr};
+            auto bins = std::make_unique<canopy::BinSet>();
+            canopy::SkipCounts skip;
+
+            canopy::PlacementArena arena;
+            arena.chunk_nodes = chunk;
+            canopy::NodeTask children[2];
+            const bool split = canopy::run_node(ctx, root, children, *bins, skip);
+            ASSERT_TRUE(split);
+            arena.records.push_back(NodeRecord::of(root, false));
+            for (const canopy::NodeTask& c : children) {
+                canopy::ChunkedNodes out(arena);
+                canopy::SubtreeBlock b;
+                b.leaves = canopy::build_depth_first(ctx, c, out, *bins, skip, 0);
+                b.chunk = out.first_chunk();
+                b.first = out.first();
+                b.size = out.size();
+                b.root = NodeRecord::of(c, arena.chunks[b.chunk][b.first].is_leaf());
+                arena.blocks.push_back(b);
+            }
+            size_t held = 0;
+            for (size_t k = 0; k < arena.chunks.size(); ++k) {
+                EXPECT_LE(arena.chunks[k].size(), arena.chunks[k].capacity());
+                if (k + 1 < arena.chunks.size()) {
+                    EXPECT_EQ(arena.chunks[k].size(), arena.chunks[k].capacity());
+                }
+                held += arena.chunks[k].size();
+            }
+            EXPECT_EQ(held, expected.nodes.size() - 1) << "every node but the root is in a block";
+            if (chunk < 64) {
+                EXPECT_GT(arena.chunks.size(), 2u) << "chunk " << chunk;
+            }
+            arena.trim();
+            EXPECT_EQ(arena.chunks.back().size(), arena.chunks.back().capacity());
+            const canopy::PlacementArena* views[] = {&arena};
+            std::vector<Node> nodes;
+            canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nodes, ReverseForEach{});
+            EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << n << " chunk " << chunk;
+            EXPECT_EQ(perm, expected.permutation) << "n=" << n << " chunk " << chunk;
+        }
     }
 }
 

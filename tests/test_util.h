@@ -45,6 +45,7 @@ inline BuildOptions small_tuning(uint32_t bins, uint32_t threads) {
     o.tuning.prims_per_thread = 64;
     o.tuning.task_cutoff = 64;
     o.tuning.parallel_node_min = 512;
+    o.tuning.chunk_nodes = 24;  // blocks outgrow their chunks and move
     return o;
 }
 
