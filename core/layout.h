@@ -121,7 +121,7 @@ struct SubtreeBlock {
 // A worker's subtree blocks go one after another into chunks of nodes, and
 // a block that fills a chunk goes on in a new one (ChunkedNodes below), so
 // every chunk but the last ends full, and trim() gives back the last one's
-// unused end before the placement. (Until 2026-12-03 a block needed room
+// unused end before the placement. (Until late on 2026-12-02 a block needed room
 // for its bound, twice its primitives, in one chunk before it started, so
 // each chunk's end and the last chunk's unused part were waste that
 // depended on which worker built which subtree: the 2-thread peak of
