@@ -121,9 +121,9 @@ struct SubtreeBlock {
 // A worker's subtree blocks go one after another into chunks of nodes, and
 // a block that fills a chunk goes on in a new one (ChunkedNodes below), so
 // every chunk but the last ends full, and trim() gives back the last one's
-// unused end before the placement. (Until late on 2026-12-02 a block needed room
-// for its bound, twice its primitives, in one chunk before it started, so
-// each chunk's end and the last chunk's unused part were waste that
+// unused end before the placement. (Until late on 2026-12-02 a block needed
+// room for its bound, twice its primitives, in one chunk before it started,
+// so each chunk's end and the last chunk's unused part were waste that
 // depended on which worker built which subtree: the 2-thread peak of
 // dragon_vrip_res2 was 79.5 to 86.9 bytes per triangle.)
 struct PlacementArena {
@@ -162,7 +162,7 @@ struct PlacementArena {
         chunks.back().swap(exact);
     }
     // Empties the arena for another build; the chunks' memory is kept for
-    // take_chunk() to reuse.
+    // new_chunk() to reuse.
     void reset() {
         records.clear();
         blocks.clear();
@@ -180,7 +180,6 @@ struct PlacementArena {
         for (const auto& c : chunks) n += c.size();
         return n;
     }
-
 };
 
 // A worker's subtree block in its arena's chunks, as build_depth_first

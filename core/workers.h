@@ -37,7 +37,8 @@ struct Workers {
     // the nodes (one node per primitive is typical), between 256 KiB and
     // 4 MiB. The unused part of the chunk each worker is filling is held
     // until the build ends, beside the records, so it is kept small beside
-    // the scene (a quarter of the share, at least 1 MiB, until late on 2026-12-02).
+    // the scene (until late on 2026-12-02: a quarter of the share, at least
+    // 1 MiB).
     void reset(uint32_t count, uint32_t primitives, uint32_t chunk_nodes = 0) {
         w.resize(count);
         const size_t share = size_t(primitives) / (16 * size_t(std::max(1u, count)));
