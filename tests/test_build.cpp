@@ -688,27 +688,39 @@ TEST(BuildLayout, PlaceRecordsReproducesTheSequentialTree) {
     }
 }
 
+// The kernel's inputs for a whole mesh, as a scheduler sets them up: the
+// records, an unwritten permutation, the root task, the context.
+struct KernelInputs {
+    BuildOptions opt;
+    std::vector<canopy::PrimRef> refs;
+    std::vector<uint32_t> perm;
+    canopy::NodeTask root;
+    explicit KernelInputs(const TriangleMesh& m) {
+        const uint32_t n = uint32_t(m.triangle_count());
+        refs.resize(n);
+        const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs.data());
+        EXPECT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
+        root.begin = 0;
+        root.end = n;
+        root.bounds = s.bounds;
+        root.cbounds = s.cbounds;
+        perm.assign(n, ~0u);
+    }
+    canopy::KernelContext ctx() { return {refs.data(), perm.data(), &opt, nullptr}; }
+};
+
 TEST(BuildLayout, KernelTasksInRandomOrderPlaceLikeSequential) {
     // A toy parallel scheduler: pending node tasks are run in random order,
     // each one records NodeRecord::of(task) into one of 3 arenas; the
     // placement must give the sequential tree bit for bit.
     const TriangleMesh meshes[] = {random_mesh(3000, 16), grid_mesh(20), geometric_mesh(100), coincident_mesh(300)};
     for (const TriangleMesh& m : meshes) {
-        BuildOptions opt;
-        const Bvh expected = build(m, opt);
+        KernelInputs in(m);
+        const Bvh expected = build(m, in.opt);
         const uint32_t n = uint32_t(m.triangle_count());
-
-        std::vector<canopy::PrimRef> refs(n);
-        const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs.data());
-        ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
-        canopy::NodeTask root;
-        root.begin = 0;
-        root.end = n;
-        root.bounds = s.bounds;
-        root.cbounds = s.cbounds;
-
-        std::vector<uint32_t> perm(n, ~0u);
-        const canopy::KernelContext ctx{refs.data(), perm.data(), &opt, nullptr};
+        const canopy::NodeTask& root = in.root;
+        const std::vector<uint32_t>& perm = in.perm;
+        const canopy::KernelContext ctx = in.ctx();
         auto bins = std::make_unique<canopy::BinSet>();
         canopy::SkipCounts skip;
         std::mt19937 rng(n);
@@ -824,28 +836,15 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
     const TriangleMesh meshes[] = {random_mesh(500, 5), grid_mesh(9), coincident_mesh(40)};
     for (const TriangleMesh& m : meshes) {
         for (const size_t chunk : {size_t(1), size_t(2), size_t(3), size_t(7), size_t(64)}) {
-            BuildOptions opt;
-            const Bvh expected = build(m, opt);
-            const uint32_t n = uint32_t(m.triangle_count());
-            std::vector<canopy::PrimRef> refs(n);
-            const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs.data());
-            ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
-            canopy::NodeTask root;
-            root.begin = 0;
-            root.end = n;
-            root.bounds = s.bounds;
-            root.cbounds = s.cbounds;
-            std::vector<uint32_t> perm(n, ~0u);
-            const canopy::KernelContext ctx{refs.data(), perm.data(), &opt, nullptr};
-            auto bins = std::make_unique<canopy::BinSet>();
+            KernelInputs in(m);
+            const canopy::KernelContext ctx = in.ctx();
+            const auto bins = std::make_unique<canopy::BinSet>();
             canopy::SkipCounts skip;
-
             canopy::PlacementArena arena;
             arena.chunk_nodes = chunk;
             canopy::NodeTask children[2];
-            const bool split = canopy::run_node(ctx, root, children, *bins, skip);
-            ASSERT_TRUE(split);
-            arena.records.push_back(NodeRecord::of(root, false));
+            ASSERT_TRUE(canopy::run_node(ctx, in.root, children, *bins, skip));
+            arena.records.push_back(NodeRecord::of(in.root, false));
             for (const canopy::NodeTask& c : children) {
                 canopy::ChunkedNodes out(arena);
                 canopy::SubtreeBlock b;
@@ -864,6 +863,7 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
                 }
                 held += arena.chunks[k].size();
             }
+            const Bvh expected = build(m, in.opt);
             EXPECT_EQ(held, expected.nodes.size() - 1) << "every node but the root is in a block";
             if (chunk < 64) {
                 EXPECT_GT(arena.chunks.size(), 2u) << "chunk " << chunk;
@@ -873,8 +873,8 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
             const canopy::PlacementArena* views[] = {&arena};
             std::vector<Node> nodes;
             canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nodes, ReverseForEach{});
-            EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << n << " chunk " << chunk;
-            EXPECT_EQ(perm, expected.permutation) << "n=" << n << " chunk " << chunk;
+            EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << in.refs.size() << " chunk " << chunk;
+            EXPECT_EQ(in.perm, expected.permutation) << "n=" << in.refs.size() << " chunk " << chunk;
         }
     }
 }
