@@ -81,11 +81,17 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
                     top.next.push_back(top.kids[0]);
                     top.next.push_back(top.kids[1]);
                 }
-                top.node.reset();  // its bins and marks are not held through the rest of the build
             }
         }
 #pragma omp single
-        top.frontier.swap(top.next);
+        {
+            // Its bins and marks are not held through the rest of the build.
+            // Not in the single above: a thread can still be reading the node
+            // in run_parallel_node's `splits()` test when another enters that
+            // single (only its end is a barrier).
+            top.node.reset();
+            top.frontier.swap(top.next);
+        }
     }
 }
 

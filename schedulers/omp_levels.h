@@ -76,8 +76,16 @@ struct OmpLevels {
                             lv.next.push_back(lv.big_kids[0]);
                             lv.next.push_back(lv.big_kids[1]);
                         }
-                        lv.node.reset();  // its bins and marks are not held through the rest of the build
                     }
+                }
+                // Its bins and marks are not held through the rest of the
+                // build. Not in the single above: a thread can still be reading
+                // the node in run_parallel_node's `splits()` test when another
+                // enters that single (only its end is a barrier). lv.big is the
+                // same for the whole team, so all or none meet this single.
+                if (!lv.big.empty()) {
+#pragma omp single
+                    lv.node.reset();
                 }
                 const size_t count = lv.small.size();
                 // Chunks of one node while a level has few nodes (they are

@@ -304,3 +304,37 @@ TEST(EquivalenceSlow, MillionTriangleScenes) {
 }
 
 }  // namespace
+
+// Regression test for a bug found by fuzz_build (2026-12-02): when a
+// team-parallel node became a leaf, the OpenMP drivers freed it inside the
+// `single` that follows run_parallel_node, while a thread of the team could
+// still be reading it in run_parallel_node's `splits()` test (a single has
+// no barrier on entry). The fuzz input (4 vertices, tuning 1/1/1) hit it in
+// about a third of its runs under AddressSanitizer. Tiny scenes whose root is
+// team-parallel (every size qualifies with this tuning) and a leaf, or splits
+// once, built many times: the sanitizer builds of this suite see a
+// use-after-free if the freeing comes back; every build must still give the
+// sequential tree.
+TEST(Equivalence, TeamParallelNodesThatEndAsLeaves) {
+    BuildOptions opt;
+    opt.threads = 2;
+    opt.tuning.prims_per_thread = 1;
+    opt.tuning.task_cutoff = 1;
+    opt.tuning.parallel_node_min = 1;
+    // Coincident triangles up to the leaf size end as a leaf (no split
+    // pays); random ones split once or twice.
+    const TriangleMesh meshes[] = {generate("coincident", 2, 1), generate("coincident", 4, 1),
+                                   generate("random", 2, 3), generate("random", 7, 3)};
+    for (const TriangleMesh& m : meshes) {
+        const size_t n = m.triangle_count();
+        BuildOptions seq = opt;
+        seq.threads = 1;
+        const Bvh ref = build<Sequential>(m.view(), seq);
+        for (const SchedulerEntry& s : tested_schedulers()) {
+            int mismatches = 0;
+            for (int r = 0; r < 100; ++r)
+                if (!(s.build_triangles(m.view(), opt, nullptr) == ref)) ++mismatches;
+            EXPECT_EQ(mismatches, 0) << s.name << " n=" << n;
+        }
+    }
+}
