@@ -26,16 +26,18 @@ void write_chrome_trace(const TraceLog& log, const std::string& path, const std:
     char buf[512];
     for (const TraceSpan& s : log.spans()) {
         const double ts = double(s.start_ns) / 1000.0, dur = double(s.end_ns - s.start_ns) / 1000.0;
-        const bool phase = s.kind >= TraceSpan::Start;
+        const bool phase = s.node_phase();
         char name[64];
         if (phase)
             std::snprintf(name, sizeof name, "node %u: %s", s.node, kinds[s.kind]);
+        else if (s.build_phase())
+            std::snprintf(name, sizeof name, "build: %s", kinds[s.kind]);
         else
             std::snprintf(name, sizeof name, "node %u", s.node);
         std::snprintf(buf, sizeof buf,
                       ",\n{\"name\":\"%s\",\"cat\":\"%s\",\"ph\":\"X\",\"pid\":1,\"tid\":%u,\"ts\":%.3f,"
                       "\"dur\":%.3f,\"args\":{\"node\":%u,\"primitives\":%u,\"level\":%u,\"mode\":\"%s\"}}",
-                      name, phase ? "phase" : kinds[s.kind], s.worker, ts, dur, s.node, s.count, unsigned(s.depth),
+                      name, phase ? "phase" : s.build_phase() ? "build" : kinds[s.kind], s.worker, ts, dur, s.node, s.count, unsigned(s.depth),
                       kinds[s.kind]);
         out << buf;
     }

@@ -5,7 +5,10 @@
 // ("task"), a whole subtree run inline below the task cutoff ("inline"), or
 // a big node processed by the whole team ("parallel", with a span for each
 // of its phases: start, bin, evaluate, mark and swap or, for a middle split,
-// count, and finish). Tracing is off unless a TraceLog is passed to the
+// count, and finish). Two spans cover the build's own phases around the
+// node tasks, on the calling thread's track: "prepare" (the primitive
+// records, bounds and centroids) and, for the parallel drivers, "place" (the
+// final node array from the workers' blocks). Tracing is off unless a TraceLog is passed to the
 // build; when off, the only cost is one pointer test per scheduled task,
 // outside every per-primitive loop.
 #pragma once
@@ -21,11 +24,14 @@
 namespace canopy {
 
 struct TraceSpan {
-    // How the node ran; the kinds from Start on are the phases of a
-    // team-parallel node (see run_parallel_node).
-    enum Kind : uint8_t { Task, Inline, Parallel, Start, Bin, Evaluate, Count, Mark, Swap, Finish };
-    static constexpr const char* kKindNames[] = {"task",     "inline", "parallel", "start", "bin",
-                                                 "evaluate", "count",  "mark",     "swap",  "finish"};
+    // How the node ran; the kinds from Start to Finish are the phases of a
+    // team-parallel node (see run_parallel_node), Prepare and Place the
+    // build's phases before and after the node tasks (their node is the root).
+    enum Kind : uint8_t { Task, Inline, Parallel, Start, Bin, Evaluate, Count, Mark, Swap, Finish, Prepare, Place };
+    static constexpr const char* kKindNames[] = {"task",  "inline", "parallel", "start",  "bin",     "evaluate",
+                                                 "count", "mark",   "swap",     "finish", "prepare", "place"};
+    bool node_phase() const { return kind >= Start && kind <= Finish; }
+    bool build_phase() const { return kind >= Prepare; }
     uint64_t start_ns, end_ns;  // since the log's start
     uint32_t worker;
     uint32_t node;              // canonical node index (filled in after placement)
@@ -95,6 +101,12 @@ public:
     // whole destructor out of line, a call per node.
     ~TraceScope() {
         if (log_) close();
+    }
+    // A build phase (Prepare, Place) over all `n` primitives, on `worker`.
+    TraceScope(TraceLog* log, uint32_t n, uint32_t worker, TraceSpan::Kind kind)
+        : log_(CANOPY_TRACE ? log : nullptr) {
+        if (!log_) return;
+        span_ = TraceSpan{log_->now_ns(), 0, worker, 0, 0, n, 0, 0, 0, 0, kind};
     }
     TraceScope(const TraceScope&) = delete;
     TraceScope& operator=(const TraceScope&) = delete;

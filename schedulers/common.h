@@ -77,6 +77,7 @@ inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& 
 // thread): the merged summary is order-independent.
 template <class ForEach>
 void prepare_parallel(BuildState& st, ForEach&& for_each) {
+    const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
     const uint32_t blocks = (st.n + kPrepareBlock - 1) / kPrepareBlock;
     std::vector<PrepareSummary> part(blocks);
     for_each(blocks, [&](uint32_t b) {
@@ -92,6 +93,7 @@ void prepare_parallel(BuildState& st, ForEach&& for_each) {
 // permutation as they were made).
 template <class ForEach>
 void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
+    const TraceScope trace(st.trace, st.n, 0, TraceSpan::Place);
     // The records are no longer needed (the leaves wrote the permutation):
     // a one-off build returns their memory before the final node array is
     // allocated, so that it and the workers' blocks are not all held at once

@@ -19,7 +19,10 @@ struct Sequential {
 
     static void run(BuildState& st) {
         st.stats.threads_used = 1;
-        st.finish_prepare(st.prepare_range(0, st.n));
+        {
+            const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
+            st.finish_prepare(st.prepare_range(0, st.n));
+        }
         build_subtree(st);
     }
 

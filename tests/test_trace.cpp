@@ -55,7 +55,14 @@ TEST(Trace, SpansNameTheirCanonicalNodes) {
             EXPECT_LE(sp.start_ns, sp.end_ns);
             EXPECT_LT(sp.worker, 2u);
         }
-        if (std::string(s.name) == "sequential") continue;
+        // One span for the primitive records; the parallel drivers add one for
+        // the final node array.
+        EXPECT_EQ(kinds[TraceSpan::Prepare], 1);
+        if (std::string(s.name) == "sequential") {
+            EXPECT_EQ(kinds[TraceSpan::Place], 0);
+            continue;
+        }
+        EXPECT_EQ(kinds[TraceSpan::Place], 1);
         // The root is big enough to run team-parallel, with its phases.
         EXPECT_GT(kinds[TraceSpan::Parallel], 0);
         for (const TraceSpan::Kind k : {TraceSpan::Start, TraceSpan::Bin, TraceSpan::Evaluate, TraceSpan::Finish})
@@ -94,7 +101,13 @@ TEST(Trace, ChromeTraceFileParses) {
         EXPECT_TRUE(e.contains("ts") && e.contains("dur"));
         EXPECT_TRUE(e["args"].contains("node") && e["args"].contains("primitives") && e["args"].contains("level"));
         const std::string mode = e["args"]["mode"];
-        EXPECT_TRUE(mode == "task" || mode == "inline" || mode == "parallel" || e["cat"] == "phase") << mode;
+        const std::string cat = e["cat"];
+        if (cat == "phase")
+            EXPECT_NE(e["name"].get<std::string>().find(": " + mode), std::string::npos) << e["name"];
+        else if (cat == "build")
+            EXPECT_TRUE(e["name"] == "build: " + mode && (mode == "prepare" || mode == "place")) << e["name"];
+        else
+            EXPECT_TRUE(cat == mode && (mode == "task" || mode == "inline" || mode == "parallel")) << mode;
     }
     EXPECT_EQ(spans, log.spans().size());
     EXPECT_EQ(tracks_named, tracks_used);  // every track used has a name
