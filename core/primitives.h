@@ -20,7 +20,7 @@ namespace canopy {
 // node streams through a contiguous range of them. -0 is stored as +0. The id
 // and the area sit in the fourth lanes, which no arithmetic touches: the
 // kernel masks them off before computing with a box (the id's bits as a float
-// would be a slow subnormal), and only compares and takes maxima of the area.
+// would be a slow subnormal), and only compares, takes maxima of and sums the area.
 // Aligned to 32 bytes, so that no record straddles two cache lines: the bins
 // load a record as one 256-bit vector where AVX is compiled in.
 struct alignas(32) PrimRef {
@@ -39,8 +39,9 @@ inline Vec3 centroid(const PrimRef& r) { return r.lo * 0.5f + r.hi * 0.5f + 0.0f
 
 // The area stored in a record: the box's half area, computed in double (no
 // overflow, no NaN) and rounded to float, saturated at the largest float, and
-// 0 below the smallest normal float (so it is never subnormal). Used only to
-// find a node's large primitives (see the size split in kernel.h).
+// 0 below the smallest normal float (so it is never subnormal). Used to find
+// a node's large primitives (the size split in kernel.h) and for the SAH
+// lower bound of small nodes (leaf_by_bound()).
 inline float prim_area(const Vec3& lo, const Vec3& hi) {
     const double dx = double(hi.x) - double(lo.x), dy = double(hi.y) - double(lo.y),
                  dz = double(hi.z) - double(lo.z);

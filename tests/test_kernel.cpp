@@ -41,6 +41,7 @@ PrimRef make_ref(Vec3 lo, Vec3 hi, uint32_t id) {
     r.lo = lo;
     r.hi = hi;
     r.id = id;
+    r.area = canopy::prim_area(lo, hi);  // as prepare stores it
     return r;
 }
 
@@ -564,7 +565,10 @@ TEST(KernelEvaluate, FourBinSweepsMatchTheGeneralOnes) {
         const uint32_t n = 2 + seed % 15;
         std::vector<PrimRef> refs = random_refs(n, 7000 + seed, seed % 2 ? 10.0f : 1e-3f, 1.0f);
         if (seed % 4 == 1)
-            for (auto& r : refs) r.hi.y = r.lo.y = -2.0f;
+            for (auto& r : refs) {
+                r.hi.y = r.lo.y = -2.0f;
+                r.area = canopy::prim_area(r.lo, r.hi);
+            }
         if (seed % 6 == 2) refs[1] = make_ref(refs[0].lo, refs[0].hi, 1);
         if (seed % 8 == 3)  // mirror images: equal costs on two axes
             for (uint32_t i = 0; i < n; ++i) refs[i] = cube(Vec3(float(i), float(i), 0.0f), 0.25f, i);
@@ -791,7 +795,10 @@ TEST(KernelPartition, BinnedSidesMatchPartition) {
     for (uint32_t n = 1; n <= canopy::kBinBlock; ++n) {
         std::vector<PrimRef> input = random_refs(n, 100 + n, 10.0f, 1.0f);
         if (n % 3 == 0)
-            for (auto& r : input) r.hi.z = r.lo.z = 4.0f;
+            for (auto& r : input) {
+                r.hi.z = r.lo.z = 4.0f;
+                r.area = canopy::prim_area(r.lo, r.hi);
+            }
         if (n % 5 == 0)
             for (uint32_t i = 1; i < n; i += 2) input[i] = make_ref(input[i - 1].lo, input[i - 1].hi, input[i].id);
         const NodeTask t = task_of(input, 0, n);
@@ -1180,7 +1187,7 @@ PrimRef prepared(Vec3 lo, Vec3 hi, uint32_t id) {
     return r;
 }
 
-// random_refs() with areas, and a few boxes many times larger.
+// random_refs() with a few boxes many times larger.
 std::vector<PrimRef> sized_refs(uint32_t n, uint32_t seed) {
     std::vector<PrimRef> refs = random_refs(n, seed);
     std::mt19937 rng(seed);
@@ -1470,7 +1477,10 @@ TEST(KernelLeafByBound, NeverContradictsTheEvaluation) {
         const float scale = std::ldexp(1.0f, int(rng() % 200) - 100);
         std::vector<PrimRef> refs = random_refs(n, rng(), 4.0f * scale, uniform(rng, 0.5f, 8.0f) * scale);
         if (rng() % 4 == 0)
-            for (PrimRef& r : refs) r.hi.z = r.lo.z = 0.0f;
+            for (PrimRef& r : refs) {
+                r.hi.z = r.lo.z = 0.0f;
+                r.area = canopy::prim_area(r.lo, r.hi);
+            }
         const NodeTask t = task_of(refs, 0, n);
         const bool evaluated = evaluated_leaf(refs, t, opt);
         if (canopy::leaf_by_bound(refs.data(), t, opt)) {
