@@ -563,6 +563,8 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     node4.grow(simd::vec(node_bounds.lo), simd::vec(node_bounds.hi));
     const float parent = measure(node4);
     if (!(parent > 0.0f)) return best;
+    // Taken here, the division runs beside the sweeps instead of after them.
+    const double inv_parent = 1.0 / double(parent);
     const uint32_t nb = Fixed ? Fixed : m.bins;
     // The three axes are swept together, one lane each (lane 3 unused).
     // Bin b's counts as one vector, transposed four bins at a time (clear()
@@ -636,7 +638,7 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     best.axis = a;
     best.index = uint32_t(idx[a]);
     best.left_count = uint32_t(left[a]);
-    best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm_cvtss_f32(low)) / double(parent);
+    best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm_cvtss_f32(low)) * inv_parent;
     return best;
 }
 // The sweeps with the signed count conversion, again with the unsigned one
@@ -1234,8 +1236,10 @@ inline bool leaf_by_bound(const PrimRef* refs, const NodeTask& t, const BuildOpt
     // a lower bound within the margin.
     double sum = 0.0;
     for (uint32_t i = t.begin; i < t.end; ++i) sum += double(refs[i].area);
-    const double bound = double(opt.traversal_cost) + double(opt.intersection_cost) * (sum / area) * (1.0 - 0x1p-12);
-    return bound >= double(opt.intersection_cost) * double(t.size());
+    // C_t + C_i * (sum / A) * (1 - 2^-12) >= C_i * n, multiplied out by A > 0
+    // (no division: its latency sat on the path to the node's next step).
+    return double(opt.intersection_cost) * sum * (1.0 - 0x1p-12) >=
+           (double(opt.intersection_cost) * double(t.size()) - double(opt.traversal_cost)) * area;
 }
 
 // Everything a node task needs besides its own range.
