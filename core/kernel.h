@@ -763,23 +763,6 @@ inline void consider_size_split(const SizeBins& sb, const SizeCuts& cuts, const 
     }
 }
 
-// What a partition (or a middle split) leaves: where the right child starts,
-// and both children's bounds and centroid bounds, accumulated on the way.
-struct PartitionResult {
-    uint32_t mid = 0;
-    Box left_bounds, left_cbounds, right_bounds, right_cbounds;
-    float left_max_area = 0.0f, right_max_area = 0.0f;
-
-    void merge(const PartitionResult& o) {  // for blocked partitions
-        left_bounds.extend(o.left_bounds);
-        left_cbounds.extend(o.left_cbounds);
-        right_bounds.extend(o.right_bounds);
-        right_cbounds.extend(o.right_cbounds);
-        left_max_area = std::max(left_max_area, o.left_max_area);
-        right_max_area = std::max(right_max_area, o.right_max_area);
-    }
-};
-
 // The largest area a box grown with simd::hi_area() has seen (0 if none).
 inline float max_area_of(const simd::Box4& b) { return std::max(0.0f, simd::lane3(b.hi)); }
 
@@ -791,14 +774,31 @@ struct ChildBounds4 {
         bounds[side].grow(lo, hi_area);
         cbounds[side].grow(c, c);
     }
-    void into(PartitionResult& r) const {
-        r.left_bounds = bounds[0].box();
-        r.right_bounds = bounds[1].box();
-        r.left_cbounds = cbounds[0].box();
-        r.right_cbounds = cbounds[1].box();
-        r.left_max_area = max_area_of(bounds[0]);
-        r.right_max_area = max_area_of(bounds[1]);
+    void merge(const ChildBounds4& o) {
+        for (int k = 0; k < 2; ++k) {
+            bounds[k].grow(o.bounds[k]);
+            cbounds[k].grow(o.cbounds[k]);
+        }
     }
+};
+
+// What a partition (or a middle split) leaves: where the right child starts,
+// and both children's bounds and centroid bounds, accumulated on the way.
+// Kept as the accumulators' vectors until emit() writes the children: a
+// partition returns this through memory, and vectors stored and loaded
+// whole forward from store to load, where boxes of three-float corners
+// copied in 16-byte pieces did not (a stall after every partition).
+struct PartitionResult {
+    ChildBounds4 acc;
+    uint32_t mid = 0;
+
+    Box left_bounds() const { return acc.bounds[0].box(); }
+    Box right_bounds() const { return acc.bounds[1].box(); }
+    Box left_cbounds() const { return acc.cbounds[0].box(); }
+    Box right_cbounds() const { return acc.cbounds[1].box(); }
+    float left_max_area() const { return max_area_of(acc.bounds[0]); }
+    float right_max_area() const { return max_area_of(acc.bounds[1]); }
+    void merge(const PartitionResult& o) { acc.merge(o.acc); }  // for blocked partitions
 };
 
 // The bin index of a centroid coordinate on one axis never decreases as the
@@ -972,12 +972,7 @@ inline void swap_refs(PrimRef& a, PrimRef& b) {
     _mm_store_ps(&b.hi.x, a1);
 }
 
-inline PartitionResult result_of(const ChildBounds4& acc, uint32_t mid) {
-    PartitionResult res;
-    acc.into(res);
-    res.mid = mid;
-    return res;
-}
+inline PartitionResult result_of(const ChildBounds4& acc, uint32_t mid) { return PartitionResult{acc, mid}; }
 
 // The partition of one block refs[b, e) (at most kSideBlock records) whose
 // sides are `left`, with left part [b, mid): the left part is the mask's
@@ -1162,24 +1157,21 @@ inline PartitionResult middle_split(const PrimRef* refs, uint32_t begin, uint32_
     const uint32_t mid = begin + (end - begin) / 2;
     grow_range(refs, begin, mid, acc, 0);
     grow_range(refs, mid, end, acc, 1);
-    PartitionResult res;
-    acc.into(res);
-    res.mid = mid;
-    return res;
+    return result_of(acc, mid);
 }
 
 // Step 4: the two child tasks of a split node.
 inline void emit(const NodeTask& t, const PartitionResult& p, NodeTask out[2]) {
     out[0].begin = t.begin;
     out[0].end = p.mid;
-    out[0].bounds = p.left_bounds;
-    out[0].cbounds = p.left_cbounds;
+    out[0].bounds = p.left_bounds();
+    out[0].cbounds = p.left_cbounds();
     out[1].begin = p.mid;
     out[1].end = t.end;
-    out[1].bounds = p.right_bounds;
-    out[1].cbounds = p.right_cbounds;
-    out[0].max_area = p.left_max_area;
-    out[1].max_area = p.right_max_area;
+    out[1].bounds = p.right_bounds();
+    out[1].cbounds = p.right_cbounds();
+    out[0].max_area = p.left_max_area();
+    out[1].max_area = p.right_max_area();
     for (int k = 0; k < 2; ++k) {
         out[k].depth = t.depth + 1;
         out[k].parent_begin = t.begin;

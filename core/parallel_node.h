@@ -142,8 +142,7 @@ public:
         ChildBounds4 acc;
         grow_range(ctx_.refs, lo, std::max(lo, std::min(hi, mid)), acc, 0);
         grow_range(ctx_.refs, std::min(hi, std::max(lo, mid)), hi, acc, 1);
-        chunk_[i] = PartitionResult{};
-        acc.into(chunk_[i]);
+        chunk_[i] = result_of(acc, 0);
     }
 
     // Serial: merges the chunks' bounds and writes the children.

@@ -87,10 +87,10 @@ Bounds bounds_of(const PrimRef* refs, uint32_t begin, uint32_t end) {
 void expect_child_bounds(const PartitionResult& p, const PrimRef* refs, uint32_t begin, uint32_t end) {
     const Bounds l = bounds_of(refs, begin, p.mid);
     const Bounds r = bounds_of(refs, p.mid, end);
-    EXPECT_EQ(p.left_bounds, l.bounds);
-    EXPECT_EQ(p.left_cbounds, l.cbounds);
-    EXPECT_EQ(p.right_bounds, r.bounds);
-    EXPECT_EQ(p.right_cbounds, r.cbounds);
+    EXPECT_EQ(p.left_bounds(), l.bounds);
+    EXPECT_EQ(p.left_cbounds(), l.cbounds);
+    EXPECT_EQ(p.right_bounds(), r.bounds);
+    EXPECT_EQ(p.right_cbounds(), r.cbounds);
 }
 
 NodeTask task_of(const std::vector<PrimRef>& refs, uint32_t begin, uint32_t end, uint32_t depth = 0) {
@@ -759,10 +759,10 @@ TEST(KernelPartition, HandMadeOrder) {
     EXPECT_EQ(p.mid, 3u);
     const uint32_t expected_ids[] = {3, 1, 5, 0, 4, 2};
     for (uint32_t i = 0; i < 6; ++i) EXPECT_EQ(refs[i].id, expected_ids[i]) << i;
-    EXPECT_EQ(p.left_bounds, (Box{Vec3(0, 0, 0), Vec3(2, 1, 1)}));
-    EXPECT_EQ(p.right_bounds, (Box{Vec3(5, 0, 0), Vec3(9, 1, 1)}));
-    EXPECT_EQ(p.left_cbounds, (Box{Vec3(0, 0.5f, 0.5f), Vec3(2, 0.5f, 0.5f)}));
-    EXPECT_EQ(p.right_cbounds, (Box{Vec3(5, 0.5f, 0.5f), Vec3(9, 0.5f, 0.5f)}));
+    EXPECT_EQ(p.left_bounds(), (Box{Vec3(0, 0, 0), Vec3(2, 1, 1)}));
+    EXPECT_EQ(p.right_bounds(), (Box{Vec3(5, 0, 0), Vec3(9, 1, 1)}));
+    EXPECT_EQ(p.left_cbounds(), (Box{Vec3(0, 0.5f, 0.5f), Vec3(2, 0.5f, 0.5f)}));
+    EXPECT_EQ(p.right_cbounds(), (Box{Vec3(5, 0.5f, 0.5f), Vec3(9, 0.5f, 0.5f)}));
 }
 
 TEST(KernelPartition, EvaluatedSplitPartitionsAsCounted) {
@@ -904,10 +904,10 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
                 const PartitionResult merged = blocked_partition(out, ranges, m, s, c.per_piece, idx);
                 EXPECT_EQ(merged.mid, p.mid);
                 ASSERT_TRUE(same_records(out, ref)) << "n " << c.n << " axis " << axis << " index " << idx;
-                EXPECT_EQ(merged.left_bounds, p.left_bounds);
-                EXPECT_EQ(merged.left_cbounds, p.left_cbounds);
-                EXPECT_EQ(merged.right_bounds, p.right_bounds);
-                EXPECT_EQ(merged.right_cbounds, p.right_cbounds);
+                EXPECT_EQ(merged.left_bounds(), p.left_bounds());
+                EXPECT_EQ(merged.left_cbounds(), p.left_cbounds());
+                EXPECT_EQ(merged.right_bounds(), p.right_bounds());
+                EXPECT_EQ(merged.right_cbounds(), p.right_cbounds());
             }
         }
     }
@@ -967,10 +967,15 @@ TEST(KernelEmit, ChildTasks) {
     t.parent_begin = 4;
     PartitionResult p;
     p.mid = 17;
-    p.left_bounds = Box{Vec3(0, 0, 0), Vec3(1, 1, 1)};
-    p.left_cbounds = Box{Vec3(0.5f), Vec3(0.5f)};
-    p.right_bounds = Box{Vec3(2, 0, 0), Vec3(4, 1, 1)};
-    p.right_cbounds = Box{Vec3(2.5f, 0.5f, 0.5f), Vec3(3.5f, 0.5f, 0.5f)};
+    const auto box4 = [](const Box& b) {
+        canopy::simd::Box4 v;
+        v.grow(canopy::simd::vec(b.lo), canopy::simd::vec(b.hi));
+        return v;
+    };
+    p.acc.bounds[0] = box4(Box{Vec3(0, 0, 0), Vec3(1, 1, 1)});
+    p.acc.cbounds[0] = box4(Box{Vec3(0.5f), Vec3(0.5f)});
+    p.acc.bounds[1] = box4(Box{Vec3(2, 0, 0), Vec3(4, 1, 1)});
+    p.acc.cbounds[1] = box4(Box{Vec3(2.5f, 0.5f, 0.5f), Vec3(3.5f, 0.5f, 0.5f)});
     NodeTask c[2];
     canopy::emit(t, p, c);
 
@@ -979,10 +984,10 @@ TEST(KernelEmit, ChildTasks) {
     EXPECT_EQ(c[1].begin, 17u);
     EXPECT_EQ(c[1].end, 30u);
     EXPECT_EQ(c[0].size() + c[1].size(), t.size());
-    EXPECT_EQ(c[0].bounds, p.left_bounds);
-    EXPECT_EQ(c[0].cbounds, p.left_cbounds);
-    EXPECT_EQ(c[1].bounds, p.right_bounds);
-    EXPECT_EQ(c[1].cbounds, p.right_cbounds);
+    EXPECT_EQ(c[0].bounds, p.left_bounds());
+    EXPECT_EQ(c[0].cbounds, p.left_cbounds());
+    EXPECT_EQ(c[1].bounds, p.right_bounds());
+    EXPECT_EQ(c[1].cbounds, p.right_cbounds());
     for (int k = 0; k < 2; ++k) {
         EXPECT_EQ(c[k].depth, 4u);
         EXPECT_EQ(c[k].parent_begin, 10u);
@@ -1153,8 +1158,8 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
         EXPECT_EQ(children[0].end, p.mid);
         EXPECT_EQ(children[0].begin, 20u);
         EXPECT_EQ(children[1].end, 180u);
-        EXPECT_EQ(children[0].bounds, p.left_bounds);
-        EXPECT_EQ(children[1].cbounds, p.right_cbounds);
+        EXPECT_EQ(children[0].bounds, p.left_bounds());
+        EXPECT_EQ(children[1].cbounds, p.right_cbounds());
         EXPECT_EQ(children[0].depth, 3u);
         EXPECT_EQ(children[0].rights, 1);
         EXPECT_EQ(children[1].rights, 2);
@@ -1377,8 +1382,8 @@ TEST(KernelSizeSplit, PartitionByAreaSwapsTheMisplacedPairs) {
         ASSERT_TRUE(same_records(refs, expected));
         for (const PrimRef& r : input) ASSERT_EQ(canopy::goes_left(r, m, s), r.area < cut);
         expect_child_bounds(p, refs.data(), begin, end);
-        EXPECT_EQ(p.left_max_area, max_area(refs, begin, p.mid));
-        EXPECT_EQ(p.right_max_area, max_area(refs, p.mid, end));
+        EXPECT_EQ(p.left_max_area(), max_area(refs, begin, p.mid));
+        EXPECT_EQ(p.right_max_area(), max_area(refs, p.mid, end));
 
         // Blocked, as the parallel node does it: the same records and bounds.
         std::vector<std::pair<uint32_t, uint32_t>> ranges;
@@ -1387,10 +1392,10 @@ TEST(KernelSizeSplit, PartitionByAreaSwapsTheMisplacedPairs) {
         const PartitionResult merged = blocked_partition(out, ranges, m, s, 777);
         EXPECT_EQ(merged.mid, p.mid);
         EXPECT_TRUE(same_records(out, refs));
-        EXPECT_EQ(merged.left_bounds, p.left_bounds);
-        EXPECT_EQ(merged.right_cbounds, p.right_cbounds);
-        EXPECT_EQ(merged.left_max_area, p.left_max_area);
-        EXPECT_EQ(merged.right_max_area, p.right_max_area);
+        EXPECT_EQ(merged.left_bounds(), p.left_bounds());
+        EXPECT_EQ(merged.right_cbounds(), p.right_cbounds());
+        EXPECT_EQ(merged.left_max_area(), p.left_max_area());
+        EXPECT_EQ(merged.right_max_area(), p.right_max_area());
     }
 }
 
@@ -1403,20 +1408,20 @@ TEST(KernelSizeSplit, ChildrenCarryTheirLargestArea) {
     const Split s = make_split(input, 0, 500, m, 1, 7);
     std::vector<PrimRef> refs = input;
     const PartitionResult p = canopy::partition(refs.data(), 0, 500, m, s);
-    EXPECT_EQ(p.left_max_area, max_area(refs, 0, p.mid));
-    EXPECT_EQ(p.right_max_area, max_area(refs, p.mid, 500));
-    EXPECT_GT(p.left_max_area, 0.0f);
+    EXPECT_EQ(p.left_max_area(), max_area(refs, 0, p.mid));
+    EXPECT_EQ(p.right_max_area(), max_area(refs, p.mid, 500));
+    EXPECT_GT(p.left_max_area(), 0.0f);
     std::vector<PrimRef> out = input;
     const PartitionResult c = blocked_partition(out, {{0, 192}, {192, 500}}, m, s, 10);
-    EXPECT_EQ(c.left_max_area, p.left_max_area);
-    EXPECT_EQ(c.right_max_area, p.right_max_area);
+    EXPECT_EQ(c.left_max_area(), p.left_max_area());
+    EXPECT_EQ(c.right_max_area(), p.right_max_area());
     const PartitionResult mid = canopy::middle_split(input.data(), 0, 500);
-    EXPECT_EQ(mid.left_max_area, max_area(input, 0, 250));
-    EXPECT_EQ(mid.right_max_area, max_area(input, 250, 500));
+    EXPECT_EQ(mid.left_max_area(), max_area(input, 0, 250));
+    EXPECT_EQ(mid.right_max_area(), max_area(input, 250, 500));
     NodeTask kids[2];
     canopy::emit(t, p, kids);
-    EXPECT_EQ(kids[0].max_area, p.left_max_area);
-    EXPECT_EQ(kids[1].max_area, p.right_max_area);
+    EXPECT_EQ(kids[0].max_area, p.left_max_area());
+    EXPECT_EQ(kids[1].max_area, p.right_max_area());
 }
 
 // ---------------------------------------------------------------- leaf_by_bound
