@@ -552,17 +552,22 @@ namespace detail {
 // found after the sweeps, from the node's count (the sweep's total), and the
 // sweeps are then run again with it. (Summing the counts first, to choose
 // before sweeping, was about 1% of the cow's build instructions.)
+//
+// The result is written into `best` field by field (set to Split{} first), not
+// returned: a Split returned through memory was copied in 16-byte pieces
+// across fields stored one by one, which cannot forward from store to load.
+// Returns true for a node of 2^31 primitives or more seen with the signed
+// conversion (`best` is then no split).
 template <uint32_t Fixed, bool Huge>
-Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt,
-                      bool& too_many) {
-    Split best;
-    too_many = false;
+bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt,
+                     Split& best) {
+    best = Split{};
     const bool use_length = !(node_bounds.half_area() > 0.0);
     const simd::Measure measure(node_bounds, use_length);
     simd::Box4 node4;
     node4.grow(simd::vec(node_bounds.lo), simd::vec(node_bounds.hi));
     const float parent = measure(node4);
-    if (!(parent > 0.0f)) return best;
+    if (!(parent > 0.0f)) return false;
     // Taken here, the division runs beside the sweeps instead of after them.
     const double inv_parent = 1.0 / double(parent);
     const uint32_t nb = Fixed ? Fixed : m.bins;
@@ -599,8 +604,7 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     if constexpr (!Huge) {
         // Every lane's total is the node's count (or 0 on an axis not binned).
         if (_mm_movemask_ps(_mm_castsi128_ps(_mm_add_epi32(n, counts(0)))) != 0) {
-            too_many = true;
-            return best;
+            return true;
         }
     }
     const __m128 valid = _mm_castsi128_ps(
@@ -627,7 +631,7 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     }
     // Across axes: the lowest cost, the lowest axis on a tie (the sums are
     // finite: measures of at most 3 times counts).
-    if (_mm_movemask_ps(found) == 0) return best;
+    if (_mm_movemask_ps(found) == 0) return false;
     const __m128 sums = simd::select(found, best_sum, simd::pos_inf());
     __m128 low = _mm_min_ps(sums, _mm_shuffle_ps(sums, sums, _MM_SHUFFLE(2, 3, 0, 1)));
     low = _mm_min_ps(low, _mm_shuffle_ps(low, low, _MM_SHUFFLE(1, 0, 3, 2)));  // the minimum in every lane
@@ -639,16 +643,16 @@ Split evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bo
     best.index = uint32_t(idx[a]);
     best.left_count = uint32_t(left[a]);
     best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm_cvtss_f32(low)) * inv_parent;
-    return best;
+    return false;
 }
 // The sweeps with the signed count conversion, again with the unsigned one
 // for a node of 2^31 primitives or more.
 template <uint32_t Fixed>
 [[gnu::always_inline]] inline Split evaluate_fixed(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
                                                    const BuildOptions& opt) {
-    bool too_many = false;
-    const Split s = evaluate_sweeps<Fixed, false>(bins, m, node_bounds, opt, too_many);
-    return too_many ? evaluate_sweeps<Fixed, true>(bins, m, node_bounds, opt, too_many) : s;
+    Split s;
+    if (evaluate_sweeps<Fixed, false>(bins, m, node_bounds, opt, s)) evaluate_sweeps<Fixed, true>(bins, m, node_bounds, opt, s);
+    return s;
 }
 }  // namespace detail
 

@@ -1522,10 +1522,11 @@ TEST(KernelEvaluate, NodesOfAtLeast2To31PrimitivesUseTheUnsignedConversion) {
             uint64_t total = 0;
             for (uint32_t b = 0; b < nb; ++b) total += bins->counts[m.valid[0] ? 0 : m.valid[1] ? 1 : 2][b];
             ASSERT_GE(total, uint64_t(1) << 31);
-            bool too_many = false;
-            canopy::detail::evaluate_sweeps<0, false>(*bins, m, t.bounds, opt, too_many);
-            EXPECT_TRUE(too_many) << seed << " " << nb;
-            const Split u = canopy::detail::evaluate_sweeps<0, true>(*bins, m, t.bounds, opt, too_many);
+            Split signed_sweep, u;
+            EXPECT_TRUE((canopy::detail::evaluate_sweeps<0, false>(*bins, m, t.bounds, opt, signed_sweep)))
+                << seed << " " << nb;
+            EXPECT_FALSE(signed_sweep.found());
+            EXPECT_FALSE((canopy::detail::evaluate_sweeps<0, true>(*bins, m, t.bounds, opt, u)));
             const Split e = canopy::evaluate(*bins, m, t.bounds, opt);
             ASSERT_EQ(e.axis, u.axis) << seed << " " << nb;
             EXPECT_EQ(e.index, u.index);
