@@ -651,7 +651,8 @@ template <uint32_t Fixed>
 [[gnu::always_inline]] inline Split evaluate_fixed(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
                                                    const BuildOptions& opt) {
     Split s;
-    if (evaluate_sweeps<Fixed, false>(bins, m, node_bounds, opt, s)) evaluate_sweeps<Fixed, true>(bins, m, node_bounds, opt, s);
+    if (evaluate_sweeps<Fixed, false>(bins, m, node_bounds, opt, s))
+        evaluate_sweeps<Fixed, true>(bins, m, node_bounds, opt, s);
     return s;
 }
 }  // namespace detail

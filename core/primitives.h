@@ -20,7 +20,8 @@ namespace canopy {
 // node streams through a contiguous range of them. -0 is stored as +0. The id
 // and the area sit in the fourth lanes, which no arithmetic touches: the
 // kernel masks them off before computing with a box (the id's bits as a float
-// would be a slow subnormal), and only compares, takes maxima of and sums the area.
+// would be a slow subnormal), and only compares, sums and takes maxima of the
+// area.
 // Aligned to 32 bytes, so that no record straddles two cache lines: the bins
 // load a record as one 256-bit vector where AVX is compiled in.
 struct alignas(32) PrimRef {

@@ -37,8 +37,8 @@ void write_chrome_trace(const TraceLog& log, const std::string& path, const std:
         std::snprintf(buf, sizeof buf,
                       ",\n{\"name\":\"%s\",\"cat\":\"%s\",\"ph\":\"X\",\"pid\":1,\"tid\":%u,\"ts\":%.3f,"
                       "\"dur\":%.3f,\"args\":{\"node\":%u,\"primitives\":%u,\"level\":%u,\"mode\":\"%s\"}}",
-                      name, phase ? "phase" : s.build_phase() ? "build" : kinds[s.kind], s.worker, ts, dur, s.node, s.count, unsigned(s.depth),
-                      kinds[s.kind]);
+                      name, phase ? "phase" : s.build_phase() ? "build" : kinds[s.kind], s.worker, ts, dur, s.node,
+                      s.count, unsigned(s.depth), kinds[s.kind]);
         out << buf;
     }
     out << "\n]}\n";

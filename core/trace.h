@@ -8,9 +8,9 @@
 // count, and finish). Two spans cover the build's own phases around the
 // node tasks, on the calling thread's track: "prepare" (the primitive
 // records, bounds and centroids) and, for the parallel drivers, "place" (the
-// final node array from the workers' blocks). Tracing is off unless a TraceLog is passed to the
-// build; when off, the only cost is one pointer test per scheduled task,
-// outside every per-primitive loop.
+// final node array from the workers' blocks). Tracing is off unless a
+// TraceLog is passed to the build; when off, the only cost is one pointer
+// test per scheduled task, outside every per-primitive loop.
 #pragma once
 
 #include "layout.h"
