@@ -159,6 +159,7 @@ struct Box4 {
     }
     void grow(const Box4& b) { grow(b.lo, b.hi); }
     Box box() const { return Box{vec3(lo), vec3(hi)}; }
+    static Box4 of(const Box& b) { return Box4{vec(b.lo), vec(b.hi)}; }
 };
 
 // A box kept as (lo, -hi), for the bins: growing it is one minimum over both
@@ -564,9 +565,7 @@ bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bou
     best = Split{};
     const bool use_length = !(node_bounds.half_area() > 0.0);
     const simd::Measure measure(node_bounds, use_length);
-    simd::Box4 node4;
-    node4.grow(simd::vec(node_bounds.lo), simd::vec(node_bounds.hi));
-    const float parent = measure(node4);
+    const float parent = measure(simd::Box4::of(node_bounds));
     if (!(parent > 0.0f)) return false;
     // Taken here, the division runs beside the sweeps instead of after them.
     const double inv_parent = 1.0 / double(parent);

@@ -35,13 +35,16 @@ namespace {
 
 constexpr float kInf = std::numeric_limits<float>::infinity();
 
+// A record's area as prepare stores it, after its box was set or changed.
+void refresh_area(PrimRef& r) { r.area = canopy::prim_area(r.lo, r.hi); }
+
 PrimRef make_ref(Vec3 lo, Vec3 hi, uint32_t id) {
     PrimRef r;
     std::memset(static_cast<void*>(&r), 0, sizeof r);
     r.lo = lo;
     r.hi = hi;
     r.id = id;
-    r.area = canopy::prim_area(lo, hi);  // as prepare stores it
+    refresh_area(r);
     return r;
 }
 
@@ -567,7 +570,7 @@ TEST(KernelEvaluate, FourBinSweepsMatchTheGeneralOnes) {
         if (seed % 4 == 1)
             for (auto& r : refs) {
                 r.hi.y = r.lo.y = -2.0f;
-                r.area = canopy::prim_area(r.lo, r.hi);
+                refresh_area(r);
             }
         if (seed % 6 == 2) refs[1] = make_ref(refs[0].lo, refs[0].hi, 1);
         if (seed % 8 == 3)  // mirror images: equal costs on two axes
@@ -797,7 +800,7 @@ TEST(KernelPartition, BinnedSidesMatchPartition) {
         if (n % 3 == 0)
             for (auto& r : input) {
                 r.hi.z = r.lo.z = 4.0f;
-                r.area = canopy::prim_area(r.lo, r.hi);
+                refresh_area(r);
             }
         if (n % 5 == 0)
             for (uint32_t i = 1; i < n; i += 2) input[i] = make_ref(input[i - 1].lo, input[i - 1].hi, input[i].id);
@@ -967,11 +970,7 @@ TEST(KernelEmit, ChildTasks) {
     t.parent_begin = 4;
     PartitionResult p;
     p.mid = 17;
-    const auto box4 = [](const Box& b) {
-        canopy::simd::Box4 v;
-        v.grow(canopy::simd::vec(b.lo), canopy::simd::vec(b.hi));
-        return v;
-    };
+    const auto box4 = canopy::simd::Box4::of;
     p.acc.bounds[0] = box4(Box{Vec3(0, 0, 0), Vec3(1, 1, 1)});
     p.acc.cbounds[0] = box4(Box{Vec3(0.5f), Vec3(0.5f)});
     p.acc.bounds[1] = box4(Box{Vec3(2, 0, 0), Vec3(4, 1, 1)});
@@ -1198,7 +1197,7 @@ std::vector<PrimRef> sized_refs(uint32_t n, uint32_t seed) {
     std::mt19937 rng(seed);
     for (PrimRef& r : refs) {
         if (rng() % 8 == 0) r.hi = r.hi + Vec3(uniform(rng, 10.0f, 60.0f));
-        r.area = canopy::prim_area(r.lo, r.hi);
+        refresh_area(r);
     }
     return refs;
 }
@@ -1218,7 +1217,7 @@ std::vector<PrimRef> room_refs() {
                                 Vec3(0.0f), i));
     for (PrimRef& r : refs) {
         r.hi = r.lo + Vec3(0.02f);
-        r.area = canopy::prim_area(r.lo, r.hi);
+        refresh_area(r);
     }
     // Walls interleaved with the small ones: floor, ceiling, left, right.
     const Box walls[] = {{Vec3(-1, -1, -1), Vec3(1, -1, 1)},
@@ -1484,7 +1483,7 @@ TEST(KernelLeafByBound, NeverContradictsTheEvaluation) {
         if (rng() % 4 == 0)
             for (PrimRef& r : refs) {
                 r.hi.z = r.lo.z = 0.0f;
-                r.area = canopy::prim_area(r.lo, r.hi);
+                refresh_area(r);
             }
         const NodeTask t = task_of(refs, 0, n);
         const bool evaluated = evaluated_leaf(refs, t, opt);
