@@ -137,6 +137,7 @@ int run_build(const BuildArgs& a) {
         sk["inline_tasks"] = stats.skipped.inline_tasks;
         sk["parallel_nodes"] = stats.skipped.parallel_nodes;
         sk["bound_leaves"] = stats.skipped.bound_leaves;
+        sk["exact_nodes"] = stats.skipped.exact_nodes;
         j["skipped"] = sk;
         j["size_splits"] = stats.skipped.size_splits;
         std::cout << j.dump() << "\n";
