@@ -503,6 +503,19 @@ ObjScan scan_obj(const std::string& path, const std::string& text) {
             }
             if (max_forward > 0) forward_refs.push_back({line_no, scan.faces, max_forward});
             scan.triangles += corners - 2;
+        } else if (keyword == "vw") {
+            // Skin weights, a tinyobjloader extension canopy does not use:
+            // "vw vertex joint weight joint weight ...". tinyobjloader casts
+            // each joint id, read as a float, to int without a range check
+            // (undefined behaviour beyond int, found by fuzzing), so ids
+            // must be numbers below 2^30 (far from int's limit whatever the
+            // rounding of its own parser); negative ones it rejects itself.
+            for (size_t k = 2; k < tokens.size(); k += 2) {
+                float id = 0.0f;
+                if (!parse_coordinate(tokens[k], id) || !(id < 0x1p30f))
+                    obj_error(path, line_no, "skin weight (vw): joint id " + quote(tokens[k]) +
+                                                 " is not a number below 2^30");
+            }
         }
         // Everything else (vn, vt, g, o, s, usemtl, mtllib, l, p, ...) is
         // left to tinyobjloader; none of it changes the triangles.

@@ -215,6 +215,13 @@ protected:
         write("twocorners.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n");
         write("notanumber.obj", "v 0 0 0\nv 1 0 0\nv 0 1 zero\nf 1 2 3\n");
         write("twocoords.obj", "v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n");
+        // Skin weights (a tinyobjloader extension): joint ids beyond int were
+        // cast to int inside tinyobjloader (undefined behaviour; found by
+        // fuzz/run.sh, the second file is the fuzzer's input, shortened).
+        write("vw_ok.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvw 1 0 0.25 7 0.75\nf 1 2 3\n");
+        write("vw_huge.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvw 1 0 0.5 3e9 0.5\nf 1 2 3\n");
+        write("vw_inf.obj", "# a quad\nv 1 0 0\nv 2 1 0\nvw -1.5e3 2.23 2.25 +0. 2.25 +0.5v 0 1e380\nf 1 2 2\n");
+        write("vw_word.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvw 1 joint 0.5\nf 1 2 3\n");
         write("text.obj", "This is not a mesh.\nIt is a letter.\n");
         std::string garbage;
         std::mt19937 rng(7);
@@ -308,6 +315,10 @@ TEST_F(Files, LibraryNamesTheFileAndLine) {
     expect_load_error("twocorners.obj", {"line 4"});
     expect_load_error("notanumber.obj", {"line 3", "zero"});
     expect_load_error("twocoords.obj", {"line 2"});
+    ASSERT_NO_THROW(load_scene(path("vw_ok.obj")));
+    expect_load_error("vw_huge.obj", {"line 4", "joint id '3e9'"});
+    expect_load_error("vw_inf.obj", {"line 4", "joint id '+0.5v'"});
+    expect_load_error("vw_word.obj", {"line 4", "joint id 'joint'"});
 }
 
 TEST_F(Files, LibraryRejectsEmptyMissingAndNonMeshFiles) {
