@@ -14,6 +14,8 @@
 //    misplaced pairs into pieces by rank, and the pieces are swapped in
 //    parallel. Bin, mark and swap: the swap pass touches only the misplaced
 //    records.
+// It bins every node it is given, so it is given none of the small nodes
+// that run_node() costs exactly (kExactMaxPrims; sched::team_parallel()).
 #pragma once
 
 #include "kernel.h"

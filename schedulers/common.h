@@ -39,9 +39,12 @@ inline uint32_t useful_threads(const BuildState& st) {
 // only the root and a child of more than 3/4 of the scene qualify. (With
 // n / (2T) and three passes, both children of the dragon's root ran
 // "team-parallel" at the same time under tbb, each on its own thread.) Only
-// speed depends on this: a node's result is the same either way.
+// speed depends on this: a node's result is the same either way, but for
+// nodes of at most kExactMaxPrims primitives, which run_node() costs exactly
+// and the team would bin: those never run team-parallel, whatever the tuning.
 inline bool team_parallel(uint32_t size, uint32_t n, uint32_t threads, const SchedulerTuning& tu) {
-    return threads > 1 && size >= tu.parallel_node_min && 2 * uint64_t(size) * threads > 3 * uint64_t(n);
+    return threads > 1 && size > kExactMaxPrims && size >= tu.parallel_node_min &&
+           2 * uint64_t(size) * threads > 3 * uint64_t(n);
 }
 
 inline bool below_cutoff(const NodeTask& t, const SchedulerTuning& tu) { return t.size() < tu.task_cutoff; }

@@ -318,12 +318,14 @@ TEST(EquivalenceSlow, MillionTriangleScenes) {
 TEST(Equivalence, TeamParallelNodesThatEndAsLeaves) {
     BuildOptions opt;
     opt.threads = 2;
+    opt.max_leaf = 8;
     opt.tuning.prims_per_thread = 1;
     opt.tuning.task_cutoff = 1;
     opt.tuning.parallel_node_min = 1;
     // Coincident triangles up to the leaf size end as a leaf (no split
-    // pays); random ones split once or twice.
-    const TriangleMesh meshes[] = {generate("coincident", 2, 1), generate("coincident", 4, 1),
+    // pays; 5 and more, since nodes of at most kExactMaxPrims never run
+    // team-parallel); random ones split once or twice.
+    const TriangleMesh meshes[] = {generate("coincident", 5, 1), generate("coincident", 8, 1),
                                    generate("random", 2, 3), generate("random", 7, 3)};
     for (const TriangleMesh& m : meshes) {
         const size_t n = m.triangle_count();
@@ -337,4 +339,27 @@ TEST(Equivalence, TeamParallelNodesThatEndAsLeaves) {
             EXPECT_EQ(mismatches, 0) << s.name << " n=" << n;
         }
     }
+}
+
+// With every threshold at its lowest, the team would take nodes of any size,
+// even those that run_node() costs exactly instead of binning (at most
+// kExactMaxPrims primitives): they must not be team-parallel, or the tree
+// would depend on the driver. Found by fuzz_build (omp_levels differed from
+// the sequential tree on a node of 4 triangles).
+TEST(Equivalence, SmallNodesAreNeverTeamParallel) {
+    BuildOptions opt;
+    opt.threads = 2;
+    opt.tuning.prims_per_thread = 1;
+    opt.tuning.task_cutoff = 1;
+    opt.tuning.parallel_node_min = 1;
+    for (uint32_t n = 2; n <= 12; ++n)
+        for (uint32_t seed = 1; seed <= 20; ++seed) {
+            const TriangleMesh m = generate(seed % 2 ? "random" : "sphere", n, seed);
+            BuildOptions seq = opt;
+            seq.threads = 1;
+            const Bvh ref = build<Sequential>(m.view(), seq);
+            for (const SchedulerEntry& s : tested_schedulers())
+                expect_same(ref, s.build_triangles(m.view(), opt, nullptr),
+                            std::string(s.name) + " n=" + std::to_string(n) + " seed " + std::to_string(seed));
+        }
 }
