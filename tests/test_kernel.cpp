@@ -1480,6 +1480,21 @@ TEST(KernelLeafByBound, HandMadeCases) {
     EXPECT_EQ(buf.perm, (std::vector<uint32_t>{0, 1}));
 }
 
+namespace {
+// n overlapping boxes of random sizes in a small region, sometimes flat on
+// one axis, at scales from tiny to huge: a small node for property tests.
+std::vector<PrimRef> random_small_node(std::mt19937& rng, uint32_t n) {
+    const float scale = std::ldexp(1.0f, int(rng() % 200) - 100);
+    std::vector<PrimRef> refs = random_refs(n, rng(), 4.0f * scale, uniform(rng, 0.5f, 8.0f) * scale);
+    if (rng() % 4 == 0)
+        for (PrimRef& r : refs) {
+            r.hi.z = r.lo.z = 0.0f;
+            refresh_area(r);
+        }
+    return refs;
+}
+}  // namespace
+
 // Property: whenever the bound says leaf, binning and evaluating say leaf
 // too (so skipping them cannot change the tree), for random small nodes,
 // costs and bin counts. Both verdicts must occur, or the test proves nothing.
@@ -1493,15 +1508,7 @@ TEST(KernelLeafByBound, NeverContradictsTheEvaluation) {
         opt.traversal_cost = uniform(rng, 0.1f, 3.0f);
         opt.intersection_cost = uniform(rng, 0.1f, 3.0f);
         const uint32_t n = 2 + rng() % (opt.max_leaf - 1);
-        // Overlapping boxes of random sizes in a small region, sometimes flat
-        // on one axis, at scales from tiny to huge.
-        const float scale = std::ldexp(1.0f, int(rng() % 200) - 100);
-        std::vector<PrimRef> refs = random_refs(n, rng(), 4.0f * scale, uniform(rng, 0.5f, 8.0f) * scale);
-        if (rng() % 4 == 0)
-            for (PrimRef& r : refs) {
-                r.hi.z = r.lo.z = 0.0f;
-                refresh_area(r);
-            }
+        const std::vector<PrimRef> refs = random_small_node(rng, n);
         const NodeTask t = task_of(refs, 0, n);
         const bool evaluated = evaluated_leaf(refs, t, opt);
         if (canopy::leaf_by_bound(refs.data(), t, opt)) {
@@ -1597,13 +1604,7 @@ TEST(KernelExactSplit, CheapestAndNeverWorseThanTheBins) {
         opt.traversal_cost = uniform(rng, 0.1f, 3.0f);
         opt.intersection_cost = uniform(rng, 0.1f, 3.0f);
         const uint32_t n = 2 + rng() % (canopy::kExactMaxPrims - 1);
-        const float scale = std::ldexp(1.0f, int(rng() % 200) - 100);
-        std::vector<PrimRef> refs = random_refs(n, rng(), 4.0f * scale, uniform(rng, 0.5f, 8.0f) * scale);
-        if (rng() % 4 == 0)
-            for (PrimRef& r : refs) {
-                r.hi.z = r.lo.z = 0.0f;
-                refresh_area(r);
-            }
+        const std::vector<PrimRef> refs = random_small_node(rng, n);
         const NodeTask t = task_of(refs, 0, n);
         uint32_t left = 0;
         double cost = 0.0;
