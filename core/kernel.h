@@ -1255,8 +1255,9 @@ inline bool leaf_by_bound(const PrimRef* refs, const NodeTask& t, const BuildOpt
 // records, each one minimum of a smaller subset's box and one record's;
 // cheaper than mapping, binning, sweeping and partitioning by bins.
 // (Measured, sequential builds, instructions per build: the cow 10.85 ->
-// 10.07 million, the dragon 460.0 -> 432.0 million; with 5 records 10.51 and
-// 447.0, with 6 11.31 and 472.1: the subsets double with each record.)
+// 10.00 million, the dragon 460.0 -> 429.7 million. A first version of this
+// code ran 10.07 and 432.0 at 4 records, 10.51 and 447.0 at 5, 11.31 and
+// 472.1 at 6: the subsets double with each record.)
 inline constexpr uint32_t kExactMaxPrims = 4;
 
 // The cheapest split of the records r[0, n), 2 <= n <= kExactMaxPrims, inside
