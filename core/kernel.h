@@ -1209,9 +1209,12 @@ inline Plan plan(const NodeTask& t, const BuildOptions& opt, SkipCounts& skip) {
 
 // The SAH verdict on a node that was binned and evaluated: leaf when the
 // node fits in a leaf and no split is cheaper than intersecting everything.
-inline bool sah_says_leaf(const Split& s, uint32_t n, const BuildOptions& opt) {
+inline bool sah_says_leaf(bool found, double cost, uint32_t n, const BuildOptions& opt) {
     if (n > opt.max_leaf) return false;
-    return !s.found() || s.cost >= double(opt.intersection_cost) * double(n);
+    return !found || cost >= double(opt.intersection_cost) * double(n);
+}
+inline bool sah_says_leaf(const Split& s, uint32_t n, const BuildOptions& opt) {
+    return sah_says_leaf(s.found(), s.cost, n, opt);
 }
 
 // A node that fits in a leaf becomes one when no split is cheaper. Every
@@ -1357,8 +1360,7 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
             uint32_t left = 0;
             double cost = 0.0;
             const bool found = exact_split(ctx.refs + t.begin, t.size(), t.bounds, opt, left, cost);
-            // As sah_says_leaf() for a Split.
-            if (t.size() <= opt.max_leaf && (!found || cost >= double(opt.intersection_cost) * double(t.size()))) {
+            if (sah_says_leaf(found, cost, t.size(), opt)) {
                 write_leaf(ctx, t);
                 return false;
             }
