@@ -67,6 +67,18 @@ std::string csv_field(const std::string& s) {
     return q + "\"";
 }
 
+// The median over rounds of a[r] / b[r]: both measured in the same round,
+// seconds apart, so a slow spell of the machine (they last minutes on
+// shared virtual machines) scales both alike and mostly cancels, where it
+// moves one median more than the other.
+std::optional<double> median_of_ratios(const std::vector<double>& a, const std::vector<double>& b) {
+    std::vector<double> r;
+    for (size_t i = 0; i < std::min(a.size(), b.size()); ++i)
+        if (b[i] > 0.0) r.push_back(a[i] / b[i]);
+    if (r.empty()) return std::nullopt;
+    return median(std::move(r));
+}
+
 std::string fmt(const char* f, double v) {
     char buf[64];
     std::snprintf(buf, sizeof buf, f, v);
@@ -99,7 +111,8 @@ public:
         if (!a_.csv.empty()) {
             csv.open(a_.csv);
             if (!csv) throw Error("cannot write '" + a_.csv + "'");
-            csv << "scene,triangles,threads,builder,median_ms,min_ms,sah,ratio_vs_embree_scene,speedup_vs_T1\n";
+            csv << "scene,triangles,threads,builder,median_ms,min_ms,sah,ratio_vs_embree_scene,speedup_vs_T1,"
+                   "ratio_vs_embree_scene_per_round,speedup_vs_T1_per_round\n";
         }
         std::vector<std::string> specs = a_.scenes;
         if (specs.empty()) specs.push_back("");
@@ -138,6 +151,8 @@ private:
         std::printf("  speedup: median at %u thread(s) / median at this thread count, per builder; "
                     "SAH: canopy's cost (half areas, costs 1)\n",
                     threads_.front());
+        std::printf("  per_round: the same ratios taken within each round (seconds apart), median over the rounds: "
+                    "less moved by the machine's slow spells than the ratio of medians\n");
         std::fflush(stdout);
     }
 
@@ -313,25 +328,31 @@ private:
         for (const Builder& b : builders_) width = std::max(width, b.name.size());
 
         std::printf("\nscene %s: %zu triangles\n", name.c_str(), n);
-        std::printf("%7s  %-*s %10s %10s %9s %10s %8s\n", "threads", int(width), "builder", "median_ms", "min_ms",
-                    "SAH", "vs_embree", "speedup");
+        std::printf("%7s  %-*s %10s %10s %9s %10s %9s %8s %9s\n", "threads", int(width), "builder", "median_ms",
+                    "min_ms", "SAH", "vs_embree", "per_round", "speedup", "per_round");
         for (size_t ti = 0; ti < threads_.size(); ++ti) {
             for (size_t b = 0; b < builders_.size(); ++b) {
                 const Measure& m = results[ti][b];
-                std::optional<double> ratio, speedup;
-                if (embree_scene && results[ti][*embree_scene].median > 0.0)
+                std::optional<double> ratio, speedup, ratio_rounds, speedup_rounds;
+                if (embree_scene && results[ti][*embree_scene].median > 0.0) {
                     ratio = m.median / results[ti][*embree_scene].median;
-                if (m.median > 0.0) speedup = results[0][b].median / m.median;
-                std::printf("%7u  %-*s %10.3f %10.3f %9s %10s %8s\n", threads_[ti], int(width),
+                    ratio_rounds = median_of_ratios(m.ms, results[ti][*embree_scene].ms);
+                }
+                if (m.median > 0.0) {
+                    speedup = results[0][b].median / m.median;
+                    speedup_rounds = median_of_ratios(results[0][b].ms, m.ms);
+                }
+                const auto x = [](const std::optional<double>& v) { return v ? fmt("%.2fx", *v) : std::string("-"); };
+                const auto c = [](const std::optional<double>& v) { return v ? fmt("%.4f", *v) : std::string(); };
+                std::printf("%7u  %-*s %10.3f %10.3f %9s %10s %9s %8s %9s\n", threads_[ti], int(width),
                             builders_[b].name.c_str(), m.median, m.min,
-                            m.sah ? fmt("%.4f", *m.sah).c_str() : "-",
-                            ratio ? fmt("%.2fx", *ratio).c_str() : "-",
-                            speedup ? fmt("%.2fx", *speedup).c_str() : "-");
+                            m.sah ? fmt("%.4f", *m.sah).c_str() : "-", x(ratio).c_str(), x(ratio_rounds).c_str(),
+                            x(speedup).c_str(), x(speedup_rounds).c_str());
                 if (csv.is_open()) {
                     csv << csv_field(name) << ',' << n << ',' << threads_[ti] << ',' << builders_[b].name << ','
                         << fmt("%.4f", m.median) << ',' << fmt("%.4f", m.min) << ','
-                        << (m.sah ? fmt("%.6f", *m.sah) : "") << ',' << (ratio ? fmt("%.4f", *ratio) : "") << ','
-                        << (speedup ? fmt("%.4f", *speedup) : "") << '\n';
+                        << (m.sah ? fmt("%.6f", *m.sah) : "") << ',' << c(ratio) << ',' << c(speedup) << ','
+                        << c(ratio_rounds) << ',' << c(speedup_rounds) << '\n';
                 }
             }
         }

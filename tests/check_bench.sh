@@ -1,0 +1,44 @@
+#!/bin/sh
+# canopy bench on a small generated scene, 3 rounds at 1 and 2 threads: the
+# command succeeds, and its CSV has one row per (threads, builder) with the
+# columns the README documents, every canopy scheduler's SAH the same, the
+# ratios positive, and the ratios that must be 1 exactly 1 (a builder against
+# itself at the first thread count; Embree's scene build against itself).
+set -eu
+canopy="$1"; out="$2"
+"$canopy" bench gen:sphere:3000 --threads 1,2 --repeat 3 --gap 0 --csv "$out" >/dev/null
+awk -F, '
+NR == 1 {
+  want = "scene,triangles,threads,builder,median_ms,min_ms,sah,ratio_vs_embree_scene,speedup_vs_T1," \
+         "ratio_vs_embree_scene_per_round,speedup_vs_T1_per_round"
+  if ($0 != want) { print "unexpected header: " $0; bad = 1 }
+  next
+}
+{
+  rows++
+  if (NF != 11) { print "row " NR ": " NF " fields"; bad = 1 }
+  if (tris == "") tris = $2
+  if ($1 != "gen:sphere:3000" || !($2 > 0) || $2 != tris) { print "row " NR ": scene " $1 " " $2; bad = 1 }
+  if (!($5 > 0 && $6 > 0 && $6 <= $5)) { print "row " NR ": median " $5 ", min " $6; bad = 1 }
+  if (!($9 > 0 && $11 > 0)) { print "row " NR ": speedups " $9 " " $11; bad = 1 }
+  if ($3 == 1 && ($9 != "1.0000" || $11 != "1.0000")) { print "row " NR ": 1-thread speedup not 1"; bad = 1 }
+  if ($4 == "embree_scene") {
+    embree = 1
+    if ($8 != "1.0000" || $10 != "1.0000") { print "row " NR ": Embree against itself not 1"; bad = 1 }
+  }
+  if ($4 != "embree_scene" && $4 != "embree_builder") {
+    canopy_rows++
+    if (sah == "") sah = $7
+    if ($7 != sah || sah == "") { print "row " NR ": SAH " $7 " against " sah; bad = 1 }
+  }
+  if (($8 != "") != ($10 != "")) { print "row " NR ": one Embree ratio without the other"; bad = 1 }
+  if ($8 != "" && !($8 > 0 && $10 > 0)) { print "row " NR ": Embree ratios " $8 " " $10; bad = 1 }
+}
+END {
+  # Five schedulers at two thread counts, and Embree'"'"'s two builders when
+  # compiled in.
+  if (canopy_rows != 10) { print canopy_rows " canopy rows, want 10"; bad = 1 }
+  if (rows != (embree ? 14 : 10)) { print rows " rows"; bad = 1 }
+  if (bad) exit 1
+  print "bench CSV ok: " rows " rows"
+}' "$out"
