@@ -3,6 +3,7 @@
 // in a seeded shuffle); one table per scene.
 #include "cli.h"
 #include "core/bvh.h"
+#include "core/memory.h"
 #include "core/sah.h"
 #include "core/scene.h"
 #include "core/validate.h"
@@ -34,6 +35,7 @@ struct BenchArgs {
     std::string threads;
     uint32_t repeat = 7;
     uint32_t gap_ms = 50;
+    uint32_t prefault = 192;  // bytes per triangle touched and freed before each timed build
     std::string csv;
     uint32_t bins = BuildOptions{}.bins;
     uint32_t leaf = BuildOptions{}.max_leaf;
@@ -77,6 +79,23 @@ std::optional<double> median_of_ratios(const std::vector<double>& a, const std::
         if (b[i] > 0.0) r.push_back(a[i] / b[i]);
     if (r.empty()) return std::nullopt;
     return median(std::move(r));
+}
+
+// Touches `bytes` of fresh memory (on huge pages where granted) and frees it.
+// Run right before a timed build, it leaves that much memory in the
+// system's free pool as pages the guest has just used: on virtual machines
+// that hand idle free memory back to the host (virtio-balloon free page
+// reporting, about 2 s after it is freed here), a first touch of memory
+// handed back costs about ten times a touch of memory the guest holds, so
+// without this a build's time depended on how long ago the machine last
+// used the memory it gets (README, "Performance"). The build still
+// allocates, faults and zeroes all its memory afresh.
+void warm_page_pool(size_t bytes) {
+    if (bytes == 0) return;
+    std::unique_ptr<char[]> p(new char[bytes]);
+    advise_huge_pages(p.get(), bytes);
+    volatile char* v = p.get();
+    for (size_t i = 0; i < bytes; i += 4096) v[i] = 1;
 }
 
 std::string fmt(const char* f, double v) {
@@ -136,9 +155,9 @@ public:
 private:
     void print_header() const {
         std::printf("canopy bench: build times in ms, medians of %u alternated runs (each round: the thread counts in a "
-                    "seeded shuffle, the builders in a seeded shuffle within each; after one warm-up round, %u ms idle "
-                    "before each run); bins %u, leaf %u\n",
-                    a_.repeat, a_.gap_ms, a_.bins, a_.leaf);
+                    "seeded shuffle, the builders in a seeded shuffle within each; after one warm-up round, %u bytes "
+                    "per triangle touched and freed, then %u ms idle, before each run); bins %u, leaf %u\n",
+                    a_.repeat, a_.prefault, a_.gap_ms, a_.bins, a_.leaf);
 #if CANOPY_HAVE_EMBREE
         std::printf("  vs_embree: median / median of Embree %s's scene build (rtcCommitScene) at the same "
                     "threads (< 1: faster than Embree)\n",
@@ -244,6 +263,7 @@ private:
         input_ = std::make_unique<embree::Input>(view);
 #endif
         const size_t nb = builders_.size();
+        const size_t prefault_bytes = n * size_t(a_.prefault);
         // results[t][b]
         std::vector<std::vector<Measure>> results(threads_.size(), std::vector<Measure>(nb));
         Bvh canonical;  // the first canopy tree of this scene
@@ -291,6 +311,7 @@ private:
                         // left spinning (libgomp's team after a parallel
                         // region, TBB's workers) are asleep and do not take
                         // this builder's cores.
+                        warm_page_pool(prefault_bytes);
                         if (a_.gap_ms) std::this_thread::sleep_for(std::chrono::milliseconds(a_.gap_ms));
                         // Every canopy tree equals `canonical` (checked in
                         // the warm-up), so one tree serves every check.
@@ -390,6 +411,12 @@ Runner add_bench(CLI::App& app) {
                       "threads are asleep")
         ->capture_default_str()
         ->check(CLI::Range(0u, 10000u));
+    bench->add_option("--prefault", a->prefault,
+                      "Bytes per triangle of memory touched and freed before each timed build, so that builds get "
+                      "memory the machine holds rather than memory a virtual machine handed back to its host "
+                      "(0: off)")
+        ->capture_default_str()
+        ->check(CLI::Range(0u, 4096u));
     bench->add_option("--csv", a->csv,
                       "Also write one CSV row per (scene, threads, builder) to FILE "
                       "(speedup_vs_T1: against the smallest thread count)");
