@@ -12,20 +12,19 @@
 // took 250 to 480 ms per 256 MiB and memory freed a moment before about 30:
 // the guest reports idle free memory to its host (virtio-balloon free page
 // reporting), which has to provide it again on the next touch.
-#include "core/memory.h"
+#include "core/build_state.h"
 
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <memory>
 #include <thread>
 
 namespace {
 
 double touch_ms(size_t bytes) {
     const auto t0 = std::chrono::steady_clock::now();
-    std::unique_ptr<char[]> p(new char[bytes]);
-    canopy::advise_huge_pages(p.get(), bytes);
+    canopy::RawArray<char> p;  // as a build's arrays: fresh, advised for huge pages
+    p.allocate(bytes);
     volatile char* v = p.get();
     for (size_t i = 0; i < bytes; i += 4096) v[i] = 1;
     const auto t1 = std::chrono::steady_clock::now();

@@ -3,7 +3,7 @@
 // in a seeded shuffle); one table per scene.
 #include "cli.h"
 #include "core/bvh.h"
-#include "core/memory.h"
+#include "core/build_state.h"
 #include "core/sah.h"
 #include "core/scene.h"
 #include "core/validate.h"
@@ -92,8 +92,8 @@ std::optional<double> median_of_ratios(const std::vector<double>& a, const std::
 // allocates, faults and zeroes all its memory afresh.
 void warm_page_pool(size_t bytes) {
     if (bytes == 0) return;
-    std::unique_ptr<char[]> p(new char[bytes]);
-    advise_huge_pages(p.get(), bytes);
+    RawArray<char> p;  // fresh, not zero-filled, advised for huge pages
+    p.allocate(bytes);
     volatile char* v = p.get();
     for (size_t i = 0; i < bytes; i += 4096) v[i] = 1;
 }
