@@ -904,6 +904,17 @@ Scene load_scene(const std::string& spec) {
     throw InputError(spec + ": scene format '" + ext + "' is not supported yet (" + supported + ")");
 }
 
+void shuffle_triangles(TriangleMesh& mesh, uint64_t seed) {
+    std::mt19937_64 engine(seed);
+    const uint64_t n = mesh.triangle_count();
+    uint32_t* t = mesh.indices.data();
+    for (uint64_t i = n; i > 1; --i) {
+        // j in [0, i); the modulo's bias is below i / 2^64 < 2^-32.
+        const uint64_t j = engine() % i;
+        std::swap_ranges(t + 3 * (i - 1), t + 3 * i, t + 3 * j);
+    }
+}
+
 Scene default_scene() { return load_scene(kDefaultSceneSpec); }
 
 TriangleMesh load_obj(const std::string& path) {

@@ -41,6 +41,14 @@ TriangleMesh load_obj(const std::string& path);
 // Throws InputError for an unknown name or a zero / absurd count.
 TriangleMesh generate(const std::string& name, uint64_t count, uint64_t seed = 1);
 
+// Puts the triangles of `mesh` in a seeded random order (the vertices and
+// each triangle's corners stay as they are): the same triangles, as a file
+// written in no particular order would give them. For measuring how a
+// builder's time depends on the input order (`canopy bench --shuffle`). A
+// pure function of (mesh, seed): the permutation is a Fisher-Yates shuffle
+// driven by std::mt19937_64, whose sequence the standard fixes.
+void shuffle_triangles(TriangleMesh& mesh, uint64_t seed);
+
 // The scene `canopy build` uses with no SCENE: gen:sphere:100000.
 Scene default_scene();
 

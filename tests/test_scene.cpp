@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -235,6 +236,41 @@ TEST(SceneGenerators, RejectsBadArguments) {
 
 // ---------------------------------------------------------------------------
 // Scene specs
+
+// shuffle_triangles: a permutation of whole triangles (each keeps its corners
+// in order, the vertices are untouched), a pure function of the seed, and
+// really a reordering.
+TEST(ShuffleTriangles, PermutesWholeTrianglesDeterministically) {
+    const TriangleMesh original = generate("sphere", 2000);
+    TriangleMesh a = original, b = original, c = original;
+    shuffle_triangles(a, 7);
+    shuffle_triangles(b, 7);
+    shuffle_triangles(c, 8);
+    EXPECT_TRUE(same_arrays(a, b)) << "not a function of the seed";
+    EXPECT_FALSE(same_arrays(a, c)) << "the seed changed nothing";
+    EXPECT_EQ(a.vertices, original.vertices);
+    ASSERT_EQ(a.indices.size(), original.indices.size());
+    const auto triangles = [](const TriangleMesh& m) {
+        std::vector<std::array<uint32_t, 3>> t(m.triangle_count());
+        for (size_t i = 0; i < t.size(); ++i) t[i] = {m.indices[3 * i], m.indices[3 * i + 1], m.indices[3 * i + 2]};
+        return t;
+    };
+    std::vector<std::array<uint32_t, 3>> ta = triangles(a), to = triangles(original);
+    size_t moved = 0;
+    for (size_t i = 0; i < ta.size(); ++i) moved += ta[i] != to[i];
+    EXPECT_GT(moved, ta.size() / 2) << "few triangles moved";
+    std::sort(ta.begin(), ta.end());
+    std::sort(to.begin(), to.end());
+    EXPECT_EQ(ta, to) << "not the same triangles";
+    // Edge cases: no triangle, one triangle.
+    TriangleMesh empty;
+    shuffle_triangles(empty, 1);
+    EXPECT_TRUE(empty.indices.empty());
+    TriangleMesh one = generate("coincident", 1);
+    const TriangleMesh one_before = one;
+    shuffle_triangles(one, 3);
+    EXPECT_TRUE(same_arrays(one, one_before));
+}
 
 TEST(SceneSpecs, GeneratorSpecs) {
     const Scene s = load_scene("gen:sphere:1000");

@@ -36,6 +36,7 @@ struct BenchArgs {
     uint32_t repeat = 7;
     uint32_t gap_ms = 50;
     uint32_t prefault = 192;  // bytes per triangle touched and freed before each timed build
+    std::optional<uint64_t> shuffle;  // seed: every scene's triangles in a random order
     std::string csv;
     uint32_t bins = BuildOptions{}.bins;
     uint32_t leaf = BuildOptions{}.max_leaf;
@@ -250,6 +251,10 @@ private:
     int run_scene(const std::string& spec, std::ofstream& csv) {
         progress_.show("loading " + (spec.empty() ? std::string("the default scene") : spec));
         Scene scene = spec.empty() ? default_scene() : load_scene(spec);
+        if (a_.shuffle) {
+            shuffle_triangles(scene.mesh, *a_.shuffle);
+            scene.name += " shuffled:" + std::to_string(*a_.shuffle);
+        }
         const TriangleView view = scene.mesh.view();
         const size_t n = view.triangle_count();
         if (n == 0) {
@@ -418,6 +423,9 @@ Runner add_bench(CLI::App& app) {
                       "(0: off)")
         ->capture_default_str()
         ->check(CLI::Range(0u, 1024u));
+    bench->add_option("--shuffle", a->shuffle,
+                      "Put every scene's triangles in a random order (this seed) first: the same triangles in no "
+                      "particular order, for seeing how each builder's time depends on the input order");
     bench->add_option("--csv", a->csv,
                       "Also write one CSV row per (scene, threads, builder) to FILE "
                       "(speedup_vs_T1: against the smallest thread count)");
