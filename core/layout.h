@@ -126,24 +126,29 @@ struct SubtreeBlock {
 // so each chunk's end and the last chunk's unused part were waste that
 // depended on which worker built which subtree: the 2-thread peak of
 // dragon_vrip_res2 was 79.5 to 86.9 bytes per triangle.)
+// A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
+// that a chunk of whole huge pages faults only in huge pages (see
+// allocate_huge() and Workers::reset(), which sizes the chunks).
+using NodeChunk = std::vector<Node, HugePageAllocator<Node>>;
+
 struct PlacementArena {
     std::vector<NodeRecord> records;        // nodes run one at a time
-    std::vector<std::vector<Node>> chunks;  // the blocks' nodes, block after block
+    std::vector<NodeChunk> chunks;          // the blocks' nodes, block after block
     std::vector<SubtreeBlock> blocks;
     size_t chunk_nodes = size_t(1) << 17;   // chunk size (4 MiB)
-    std::vector<std::vector<Node>> spare;   // emptied chunks of earlier builds
+    std::vector<NodeChunk> spare;           // emptied chunks of earlier builds
 
     // The chunk a new block starts in: the last one (ChunkedNodes moves on
     // when it is full).
-    std::vector<Node>& open_chunk() {
+    NodeChunk& open_chunk() {
         if (chunks.empty()) return new_chunk();
         return chunks.back();
     }
     // A new last chunk, never grown past its capacity, so node addresses in
     // it stay valid.
-    std::vector<Node>& new_chunk() {
+    NodeChunk& new_chunk() {
         const size_t cap = std::max<size_t>(chunk_nodes, 1);
-        std::vector<Node> c;
+        NodeChunk c;
         if (!spare.empty() && spare.back().capacity() >= cap) {
             c = std::move(spare.back());
             spare.pop_back();
@@ -156,7 +161,7 @@ struct PlacementArena {
     // the exact size), once no block will be added.
     void trim() {
         if (chunks.empty() || chunks.back().capacity() == chunks.back().size()) return;
-        std::vector<Node> exact;
+        NodeChunk exact;
         reserve_on_huge_pages(exact, chunks.back().size());
         exact.insert(exact.end(), chunks.back().begin(), chunks.back().end());
         chunks.back().swap(exact);
@@ -173,7 +178,7 @@ struct PlacementArena {
         chunks.clear();
         // Largest last, the one new_chunk() looks at.
         std::sort(spare.begin(), spare.end(),
-                  [](const std::vector<Node>& a, const std::vector<Node>& b) { return a.capacity() < b.capacity(); });
+                  [](const NodeChunk& a, const NodeChunk& b) { return a.capacity() < b.capacity(); });
     }
     size_t node_count() const {
         size_t n = records.size();
@@ -218,7 +223,7 @@ private:
         return {&chunk_->emplace_back(), count_++};
     }
     PlacementArena& arena_;
-    std::vector<Node>* chunk_;
+    NodeChunk* chunk_;
     uint32_t first_chunk_ = 0, first_ = 0, count_ = 0;
 };
 

@@ -174,6 +174,32 @@ template <class E, class Fn>
 
 // ---------------------------------------------------------------- determinism
 
+// allocate_huge(): from kHugeAllocMin bytes on the memory starts on a 2 MiB
+// boundary; below, it is ordinary memory; every byte is usable and the
+// release matches (ASan checks the pairing). A NodeChunk of whole huge
+// pages is aligned too.
+TEST(HugeAllocation, BigArraysStartOnHugePageBoundaries) {
+    constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;
+    for (size_t bytes : {size_t(1000), canopy::kHugeAllocMin - 1, canopy::kHugeAllocMin, canopy::kHugeAllocMin + 4096,
+                         size_t(5) << 20}) {
+        SCOPED_TRACE(bytes);
+        auto* p = static_cast<unsigned char*>(canopy::allocate_huge(bytes));
+        ASSERT_NE(p, nullptr);
+        if (bytes >= canopy::kHugeAllocMin) {
+            EXPECT_EQ(reinterpret_cast<std::uintptr_t>(p) % kHuge, 0u);
+        }
+        std::memset(p, 0xAB, bytes);
+        EXPECT_EQ(p[bytes - 1], 0xAB);
+        canopy::release_huge(p, bytes);
+    }
+    canopy::NodeChunk chunk;
+    canopy::reserve_on_huge_pages(chunk, size_t(1) << 16);  // 2 MiB of nodes
+    EXPECT_EQ(reinterpret_cast<std::uintptr_t>(chunk.data()) % kHuge, 0u);
+    chunk.resize(3);
+    chunk[2].index = 7;
+    EXPECT_EQ(chunk[2].index, 7u);
+}
+
 TEST(BuildDeterminism, TwoBuildsAreBitIdentical) {
     const TriangleMesh meshes[] = {random_mesh(1, 1), random_mesh(3000, 2), grid_mesh(20), coincident_mesh(50),
                                    geometric_mesh(60)};
@@ -787,7 +813,7 @@ TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
                 if (rng() % 3 == 0) {  // this node's subtree becomes a block
                     canopy::SubtreeBlock blk;
                     blk.root = recs[k];
-                    std::vector<Node>& chunk = a.open_chunk();
+                    canopy::NodeChunk& chunk = a.open_chunk();
                     blk.chunk = uint32_t(a.chunks.size() - 1);
                     blk.first = uint32_t(chunk.size());
                     blk.size = subtree_size[i];
