@@ -116,6 +116,11 @@ struct SubtreeBlock {
     uint32_t leaves = 0;
 };
 
+// A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
+// that a chunk of whole huge pages faults only in huge pages (see
+// allocate_huge() and Workers::reset(), which sizes the chunks).
+using NodeChunk = std::vector<Node, HugePageAllocator<Node>>;
+
 // What one worker leaves for the placement.
 //
 // A worker's subtree blocks go one after another into chunks of nodes, and
@@ -126,11 +131,6 @@ struct SubtreeBlock {
 // so each chunk's end and the last chunk's unused part were waste that
 // depended on which worker built which subtree: the 2-thread peak of
 // dragon_vrip_res2 was 79.5 to 86.9 bytes per triangle.)
-// A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
-// that a chunk of whole huge pages faults only in huge pages (see
-// allocate_huge() and Workers::reset(), which sizes the chunks).
-using NodeChunk = std::vector<Node, HugePageAllocator<Node>>;
-
 struct PlacementArena {
     std::vector<NodeRecord> records;        // nodes run one at a time
     std::vector<NodeChunk> chunks;          // the blocks' nodes, block after block

@@ -47,7 +47,7 @@ END {
 # shuffled, has as many triangles, and canopy builds trees of the same SAH
 # (binning and partitioning depend on which primitives a node holds, not on
 # their order; checked to hold exactly for this scene).
-sah=$(awk -F, 'NR == 2 { print $2 "," $7 }' "$out")
+sah=$(awk -F, '$3 == 1 && $4 == "sequential" { print $2 "," $7 }' "$out")
 "$canopy" bench gen:sphere:3000 --shuffle 5 --threads 1 --repeat 1 --gap 0 --prefault 0 --csv "$out.shuffled" >/dev/null
 awk -F, -v want="$sah" '
 NR > 1 && $4 != "embree_scene" && $4 != "embree_builder" {

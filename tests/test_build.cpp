@@ -172,7 +172,7 @@ template <class E, class Fn>
 
 }  // namespace
 
-// ---------------------------------------------------------------- determinism
+// ---------------------------------------------------------------- memory
 
 // allocate_huge(): from kHugeAllocMin bytes on the memory starts on a 2 MiB
 // boundary; below, it is ordinary memory; every byte is usable and the
@@ -199,6 +199,8 @@ TEST(HugeAllocation, BigArraysStartOnHugePageBoundaries) {
     chunk[2].index = 7;
     EXPECT_EQ(chunk[2].index, 7u);
 }
+
+// ---------------------------------------------------------------- determinism
 
 TEST(BuildDeterminism, TwoBuildsAreBitIdentical) {
     const TriangleMesh meshes[] = {random_mesh(1, 1), random_mesh(3000, 2), grid_mesh(20), coincident_mesh(50),
