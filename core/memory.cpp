@@ -21,9 +21,11 @@ void* allocate_huge(std::size_t bytes) {
     return p;
 }
 
+// Unsized deletes: clang does not declare the sized ones without
+// -fsized-deallocation (the fuzz build).
 void release_huge(void* p, std::size_t bytes) noexcept {
-    if (bytes < kHugeAllocMin) return ::operator delete(p, bytes);
-    ::operator delete(p, bytes, kHugeAlign);
+    if (bytes < kHugeAllocMin) return ::operator delete(p);
+    ::operator delete(p, kHugeAlign);
 }
 
 void advise_huge_pages(void* p, std::size_t bytes) noexcept {
