@@ -153,7 +153,7 @@ struct PlacementArena {
             c = std::move(spare.back());
             spare.pop_back();
         } else {
-            reserve_on_huge_pages(c, cap);
+            c.reserve(cap);  // NodeChunk's allocator advises huge pages itself
         }
         return chunks.emplace_back(std::move(c));
     }
@@ -162,7 +162,7 @@ struct PlacementArena {
     void trim() {
         if (chunks.empty() || chunks.back().capacity() == chunks.back().size()) return;
         NodeChunk exact;
-        reserve_on_huge_pages(exact, chunks.back().size());
+        exact.reserve(chunks.back().size());
         exact.insert(exact.end(), chunks.back().begin(), chunks.back().end());
         chunks.back().swap(exact);
     }
