@@ -1,12 +1,24 @@
 // Replaceable global allocation functions that keep a count of the bytes the
-// heap holds and its high-water mark (see alloc_probe.h). Sizes on release
-// come from malloc_usable_size, so unsized deletes are counted exactly.
+// heap holds and its high-water mark (see alloc_probe.h).
+//
+// What a block counts: malloc_usable_size() of it (the bytes asked for plus
+// malloc's rounding, at most a few dozen bytes), which unsized deletes can
+// look up again. Not for big over-aligned blocks: glibc serves
+// aligned_alloc(2 MiB, n) from a mapping of n + 2 MiB and reports the
+// unused tail as usable, up to 2 MiB of address space that is never
+// touched (the 4M scenes' node chunks, core/memory.h, made the probe report
+// 82 bytes per triangle where the process's resident size had not grown).
+// Those blocks count the bytes asked for, rounded up to the alignment,
+// kept in a small table until they are released.
 #include "alloc_probe.h"
 
 #include <malloc.h>
 
+#include <array>
 #include <atomic>
+#include <cstdint>
 #include <cstdlib>
+#include <mutex>
 #include <new>
 
 namespace {
@@ -15,8 +27,63 @@ std::atomic<size_t> g_held{0};
 std::atomic<size_t> g_peak{0};
 std::atomic<size_t> g_base{0};
 
-void note_alloc(void* p) {
-    const size_t held = g_held.fetch_add(malloc_usable_size(p), std::memory_order_relaxed) + malloc_usable_size(p);
+// Blocks aligned to more than this are counted by their requested size.
+constexpr size_t kExactAlign = 4096;
+
+// The requested sizes of the live over-aligned blocks: open addressing
+// with linear probing, deletion by backward shift. The build holds a few
+// dozen such blocks at once; a full table (never seen) falls back to
+// malloc_usable_size for the blocks that do not fit.
+class ExactSizes {
+public:
+    bool insert(void* p, size_t bytes) noexcept {
+        const std::lock_guard lock(mutex_);
+        if (used_ + 1 >= kSlots / 2) return false;
+        size_t i = slot(p);
+        while (keys_[i] != nullptr) i = (i + 1) % kSlots;
+        keys_[i] = p;
+        sizes_[i] = bytes;
+        ++used_;
+        return true;
+    }
+    // The size recorded for p, removed from the table; 0 when p has none.
+    size_t take(void* p) noexcept {
+        const std::lock_guard lock(mutex_);
+        size_t i = slot(p);
+        while (keys_[i] != p) {
+            if (keys_[i] == nullptr) return 0;
+            i = (i + 1) % kSlots;
+        }
+        const size_t bytes = sizes_[i];
+        keys_[i] = nullptr;
+        --used_;
+        // Backward shift: move later entries of the probe run into the hole
+        // when their home slot does not lie strictly between hole and entry.
+        for (size_t hole = i, j = (i + 1) % kSlots; keys_[j] != nullptr; j = (j + 1) % kSlots) {
+            const size_t home = slot(keys_[j]);
+            const bool stays = hole <= j ? (hole < home && home <= j) : (hole < home || home <= j);
+            if (stays) continue;
+            keys_[hole] = keys_[j];
+            sizes_[hole] = sizes_[j];
+            keys_[j] = nullptr;
+            hole = j;
+        }
+        return bytes;
+    }
+
+private:
+    static constexpr size_t kSlots = 1024;
+    static size_t slot(void* p) noexcept { return size_t((std::uintptr_t(p) >> 12) * 0x9E3779B97F4A7C15ull >> 54) % kSlots; }
+    std::mutex mutex_;
+    size_t used_ = 0;
+    std::array<void*, kSlots> keys_{};
+    std::array<size_t, kSlots> sizes_{};
+};
+
+ExactSizes g_exact;
+
+void note_alloc(size_t bytes) {
+    const size_t held = g_held.fetch_add(bytes, std::memory_order_relaxed) + bytes;
     size_t peak = g_peak.load(std::memory_order_relaxed);
     while (held > peak && !g_peak.compare_exchange_weak(peak, held, std::memory_order_relaxed)) {
     }
@@ -24,16 +91,30 @@ void note_alloc(void* p) {
 
 void* allocate(size_t n, size_t align) {
     if (n == 0) n = 1;
-    void* p = align > alignof(std::max_align_t) ? std::aligned_alloc(align, (n + align - 1) / align * align)
-                                                : std::malloc(n);
+    if (align <= alignof(std::max_align_t)) {
+        void* p = std::malloc(n);
+        if (!p) throw std::bad_alloc();
+        note_alloc(malloc_usable_size(p));
+        return p;
+    }
+    const size_t rounded = (n + align - 1) / align * align;
+    void* p = std::aligned_alloc(align, rounded);
     if (!p) throw std::bad_alloc();
-    note_alloc(p);
+    note_alloc(align > kExactAlign && g_exact.insert(p, rounded) ? rounded : malloc_usable_size(p));
     return p;
 }
 
 void release(void* p) noexcept {
     if (!p) return;
     g_held.fetch_sub(malloc_usable_size(p), std::memory_order_relaxed);
+    std::free(p);
+}
+
+// Over-aligned blocks come back through the aligned deletes only.
+void release_aligned(void* p, size_t align) noexcept {
+    if (!p) return;
+    const size_t exact = align > kExactAlign ? g_exact.take(p) : 0;
+    g_held.fetch_sub(exact != 0 ? exact : malloc_usable_size(p), std::memory_order_relaxed);
     std::free(p);
 }
 
@@ -76,9 +157,9 @@ void operator delete(void* p) noexcept { release(p); }
 void operator delete[](void* p) noexcept { release(p); }
 void operator delete(void* p, size_t) noexcept { release(p); }
 void operator delete[](void* p, size_t) noexcept { release(p); }
-void operator delete(void* p, std::align_val_t) noexcept { release(p); }
-void operator delete[](void* p, std::align_val_t) noexcept { release(p); }
-void operator delete(void* p, size_t, std::align_val_t) noexcept { release(p); }
-void operator delete[](void* p, size_t, std::align_val_t) noexcept { release(p); }
+void operator delete(void* p, std::align_val_t a) noexcept { release_aligned(p, size_t(a)); }
+void operator delete[](void* p, std::align_val_t a) noexcept { release_aligned(p, size_t(a)); }
+void operator delete(void* p, size_t, std::align_val_t a) noexcept { release_aligned(p, size_t(a)); }
+void operator delete[](void* p, size_t, std::align_val_t a) noexcept { release_aligned(p, size_t(a)); }
 void operator delete(void* p, const std::nothrow_t&) noexcept { release(p); }
 void operator delete[](void* p, const std::nothrow_t&) noexcept { release(p); }
