@@ -16,7 +16,6 @@
 
 #include <array>
 #include <atomic>
-#include <cstdint>
 #include <cstdlib>
 #include <mutex>
 #include <new>
@@ -30,55 +29,40 @@ std::atomic<size_t> g_base{0};
 // Blocks aligned to more than this are counted by their requested size.
 constexpr size_t kExactAlign = 4096;
 
-// The requested sizes of the live over-aligned blocks: open addressing
-// with linear probing, deletion by backward shift. A build holds a few
-// dozen such blocks at once (the 4M scenes' node chunks at 2 threads: about
-// 32); past 511 live blocks the table is full and further blocks are
-// counted by malloc_usable_size, on allocation and release alike.
+// The requested sizes of the live over-aligned blocks, unordered, searched
+// linearly: a build holds a few dozen such blocks at once (the 4M scenes'
+// node chunks at 2 threads: about 32), each one megabytes of node work.
+// Past kSlots live blocks the table is full and further blocks are counted
+// by malloc_usable_size, on allocation and release alike.
 class ExactSizes {
 public:
     bool insert(void* p, size_t bytes) noexcept {
         const std::lock_guard lock(mutex_);
-        if (used_ + 1 >= kSlots / 2) return false;
-        size_t i = slot(p);
-        while (keys_[i] != nullptr) i = (i + 1) % kSlots;
-        keys_[i] = p;
-        sizes_[i] = bytes;
-        ++used_;
+        if (used_ == kSlots) return false;
+        entries_[used_++] = {p, bytes};
         return true;
     }
     // The size recorded for p, removed from the table; 0 when p has none.
     size_t take(void* p) noexcept {
         const std::lock_guard lock(mutex_);
-        size_t i = slot(p);
-        while (keys_[i] != p) {
-            if (keys_[i] == nullptr) return 0;
-            i = (i + 1) % kSlots;
-        }
-        const size_t bytes = sizes_[i];
-        keys_[i] = nullptr;
-        --used_;
-        // Backward shift: move later entries of the probe run into the hole
-        // when their home slot does not lie strictly between hole and entry.
-        for (size_t hole = i, j = (i + 1) % kSlots; keys_[j] != nullptr; j = (j + 1) % kSlots) {
-            const size_t home = slot(keys_[j]);
-            const bool stays = hole <= j ? (hole < home && home <= j) : (hole < home || home <= j);
-            if (stays) continue;
-            keys_[hole] = keys_[j];
-            sizes_[hole] = sizes_[j];
-            keys_[j] = nullptr;
-            hole = j;
-        }
-        return bytes;
+        for (size_t i = 0; i < used_; ++i)
+            if (entries_[i].p == p) {
+                const size_t bytes = entries_[i].bytes;
+                entries_[i] = entries_[--used_];
+                return bytes;
+            }
+        return 0;
     }
 
 private:
-    static constexpr size_t kSlots = 1024;
-    static size_t slot(void* p) noexcept { return size_t((std::uintptr_t(p) >> 12) * 0x9E3779B97F4A7C15ull >> 54) % kSlots; }
+    static constexpr size_t kSlots = 512;
+    struct Entry {
+        void* p;
+        size_t bytes;
+    };
     std::mutex mutex_;
     size_t used_ = 0;
-    std::array<void*, kSlots> keys_{};
-    std::array<size_t, kSlots> sizes_{};
+    std::array<Entry, kSlots> entries_{};
 };
 
 ExactSizes g_exact;
