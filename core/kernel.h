@@ -22,6 +22,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 #include <vector>
 
 #include <emmintrin.h>
@@ -110,6 +111,11 @@ inline __m128 hi(const PrimRef& r) { return _mm_and_ps(_mm_load_ps(&r.hi.x), xyz
 // (hi, area) unmasked: for comparisons and maxima only. Growing a box's hi
 // with it leaves the largest area in lane 3 (see lane3()), at no cost.
 inline __m128 hi_area(const PrimRef& r) { return _mm_load_ps(&r.hi.x); }
+inline float lane(__m128 v, int k) {
+    alignas(16) float f[4];
+    _mm_store_ps(f, v);
+    return f[k];
+}
 inline float lane3(__m128 v) { return _mm_cvtss_f32(_mm_shuffle_ps(v, v, _MM_SHUFFLE(3, 3, 3, 3))); }
 // The centroid, lane for lane the same IEEE operations as centroid().
 inline __m128 centroid(__m128 lo, __m128 hi) {
@@ -415,7 +421,7 @@ inline constexpr uint32_t kBinBlock = 64;
 // those of all its records, which partition_binned() reuses.
 struct BinSet : BinArrays {
     BinArrays odd;
-    alignas(16) int32_t index[kBinBlock][4];
+    alignas(32) int32_t index[kBinBlock][4];
 };
 
 // Step 1: bin the centroids of refs[begin, end) on every valid axis, in one
@@ -467,7 +473,32 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
     for (uint32_t b0 = begin; b0 < end; b0 += kBinBlock) {
         const uint32_t n = std::min(kBinBlock, end - b0);
         const PrimRef* r = refs + b0;
-        for (uint32_t i = 0; i < n; ++i)
+        uint32_t i0 = 0;
+#if defined(__AVX__)
+        // Two records at a time in 256-bit vectors, lane for lane the same
+        // operations as indices4(centroid()), so the same indices. Against
+        // one record per 128-bit step (warm sequential builds, alternated
+        // pairs, medians of 7 to 11 pairs): 1M sphere 0.945x as long,
+        // dragon_vrip_res2 0.994x, the cow 0.98x.
+        {
+            const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1));
+            const __m256 half = _mm256_set1_ps(0.5f);
+            const __m256 o = _mm256_set_m128(m.origin4, m.origin4), p = _mm256_set_m128(m.prescale4, m.prescale4);
+            const __m256 sc = _mm256_set_m128(m.scale4, m.scale4), last = _mm256_set_m128(m.last4, m.last4);
+            for (; i0 + 1 < n; i0 += 2) {
+                const __m256 lo = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].lo.x, &r[i0].lo.x), keep);
+                const __m256 hi = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].hi.x, &r[i0].hi.x), keep);
+                const __m256 c = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(lo, half), _mm256_mul_ps(hi, half)),
+                                               _mm256_setzero_ps());
+                __m256 f = _mm256_sub_ps(c, o);
+                if constexpr (Pre) f = _mm256_mul_ps(f, p);
+                f = _mm256_mul_ps(f, sc);
+                f = _mm256_min_ps(_mm256_max_ps(f, _mm256_setzero_ps()), last);
+                _mm256_store_si256(reinterpret_cast<__m256i*>(k[i0]), _mm256_cvttps_epi32(f));
+            }
+        }
+#endif
+        for (uint32_t i = i0; i < n; ++i)
             _mm_store_si128(reinterpret_cast<__m128i*>(k[i]),
                             m.template indices4<Pre>(simd::centroid(simd::lo(r[i]), simd::hi(r[i]))));
         if constexpr (Two) {
@@ -871,6 +902,19 @@ struct SideIndexTest {
         const __m128i lt = _mm_cmplt_epi32(m.template indices4<Pre>(c), index4);
         return (_mm_movemask_ps(_mm_castsi128_ps(lt)) >> axis) & 1;
     }
+#if defined(__AVX2__)
+    // left() of eight records, from their centroids' coordinates on the
+    // split axis (the same operations on that lane): bit k for c[k].
+    uint32_t left8(__m256 c) const {
+        const auto lane = [&](__m128 v) { return _mm256_set1_ps(simd::lane(v, axis)); };
+        __m256 f = _mm256_sub_ps(c, lane(m.origin4));
+        if constexpr (Pre) f = _mm256_mul_ps(f, lane(m.prescale4));
+        f = _mm256_mul_ps(f, lane(m.scale4));
+        f = _mm256_min_ps(_mm256_max_ps(f, _mm256_setzero_ps()), lane(m.last4));
+        const __m256i lt = _mm256_cmpgt_epi32(_mm256_set1_epi32(_mm_cvtsi128_si32(index4)), _mm256_cvttps_epi32(f));
+        return uint32_t(_mm256_movemask_ps(_mm256_castsi256_ps(lt)));
+    }
+#endif
 };
 
 // The same side as SideIndexTest, found by comparing the centroid's
@@ -889,6 +933,11 @@ struct SideTest {
     bool left(__m128 c, __m128 /*hi_area*/) const {
         return (_mm_movemask_ps(_mm_cmplt_ps(c, threshold4)) >> axis) & 1;
     }
+#if defined(__AVX2__)
+    uint32_t left8(__m256 c) const {
+        return uint32_t(_mm256_movemask_ps(_mm256_cmp_ps(c, _mm256_set1_ps(_mm_cvtss_f32(threshold4)), _CMP_LT_OQ)));
+    }
+#endif
 };
 
 // The side test of a size split: primitives whose area is below the cut go
@@ -940,8 +989,34 @@ inline bool goes_left(const PrimRef& r, const BinMapper& m, const Split& s) {
 inline constexpr uint32_t kSideBlock = 64;
 
 // Bit k set: record r[k] goes left (n <= kSideBlock). No branch.
+//
+// With AVX2, a whole block of a plane split takes the split axis's
+// coordinates of eight records at a time (their lo and hi lanes loaded into
+// one vector each), forms those centroid coordinates with the operations of
+// simd::centroid() and tests eight at once (left8). Against one record's
+// full centroid per step (warm sequential builds, alternated pairs, medians
+// of 9): dragon_vrip_res2 0.984x as long. Gathers instead of the loads were
+// slower (1M sphere 1.036x).
 template <class Test>
 uint64_t left_mask(const PrimRef* r, uint32_t n, const Test& side) {
+#if defined(__AVX2__)
+    if constexpr (!std::is_same_v<Test, SizeTest>) {
+        if (n == kSideBlock) {
+            const __m256 half = _mm256_set1_ps(0.5f);
+            const float* base = &r[0].lo.x + side.axis;
+            uint64_t mask = 0;
+            for (uint32_t j = 0; j < kSideBlock / 8; ++j) {
+                const float* q = base + 64 * j;
+                const __m256 lo = _mm256_setr_ps(q[0], q[8], q[16], q[24], q[32], q[40], q[48], q[56]);
+                const __m256 hi = _mm256_setr_ps(q[4], q[12], q[20], q[28], q[36], q[44], q[52], q[60]);
+                const __m256 c = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(lo, half), _mm256_mul_ps(hi, half)),
+                                               _mm256_setzero_ps());
+                mask |= uint64_t(side.left8(c)) << (8 * j);
+            }
+            return mask;
+        }
+    }
+#endif
     uint64_t mask = 0;
     for (uint32_t k = 0; k < n; ++k)
         mask |= uint64_t(side.left(simd::centroid(simd::lo(r[k]), simd::hi(r[k])), simd::hi_area(r[k]))) << k;
@@ -951,13 +1026,34 @@ inline uint64_t block_bits(uint32_t n) { return n >= 64 ? ~uint64_t(0) : (uint64
 
 // Grows side `Side` of `acc` (a constant side, so the accumulators stay in
 // registers) with the records of block r whose bits are set.
+//
+// Every other record goes into a second pair of accumulators, merged at the
+// end, so that each minimum and maximum waits on the one two records back,
+// not on the previous one. The result is the same bits: minima and maxima
+// do not depend on order here (the records hold no NaN, and prepare made
+// every -0 +0). Warm sequential builds, alternated pairs, medians of 7:
+// 1M sphere 0.979x as long, dragon_vrip_res2 0.980x.
 template <int Side>
 inline void grow_side(const PrimRef* r, uint64_t bits, ChildBounds4& acc) {
+    simd::Box4 b2, c2;
     for (; bits; bits &= bits - 1) {
+        {
+            const PrimRef& x = r[std::countr_zero(bits)];
+            const __m128 lo = simd::lo(x);
+            const __m128 c = simd::centroid(lo, simd::hi(x));
+            acc.bounds[Side].grow(lo, simd::hi_area(x));
+            acc.cbounds[Side].grow(c, c);
+        }
+        bits &= bits - 1;
+        if (!bits) break;
         const PrimRef& x = r[std::countr_zero(bits)];
         const __m128 lo = simd::lo(x);
-        acc.add(Side, lo, simd::hi_area(x), simd::centroid(lo, simd::hi(x)));
+        const __m128 c = simd::centroid(lo, simd::hi(x));
+        b2.grow(lo, simd::hi_area(x));
+        c2.grow(c, c);
     }
+    acc.bounds[Side].grow(b2);
+    acc.cbounds[Side].grow(c2);
 }
 
 // The side mask of a block of n <= kSideBlock records, with their bounds

@@ -747,6 +747,38 @@ TEST(KernelPartition, ThresholdSideTestMatchesTheBinIndex) {
     EXPECT_GT(checked, 10000);
 }
 
+TEST(KernelPartition, BlockMaskMatchesTheRecordTest) {
+    // left_mask() of a whole block (with AVX2, eight records at a time from
+    // the split axis's lanes, see there) equals the record-by-record test,
+    // for the threshold test and both index tests, at unit scale and at
+    // 2^-80 (prescaled mapping), for every plane split of 4 and 32 bins.
+    int checked = 0;
+    for (const float unit : {1.0f, 0x1p-80f}) {
+        const std::vector<PrimRef> refs = random_refs(3 * canopy::kSideBlock, 23, 100.0f * unit, 2.0f * unit);
+        const Bounds b = bounds_of(refs.data(), 0, uint32_t(refs.size()));
+        for (const uint32_t nb : {4u, 32u}) {
+            const BinMapper m = BinMapper::make(b.cbounds, nb);
+            ASSERT_EQ(m.prescaled, unit != 1.0f);
+            for_each_plane_split(m, [&](const Split& s) {
+                const auto one_by_one = [&](const PrimRef* r, const auto& side) {
+                    uint64_t mask = 0;
+                    for (uint32_t k = 0; k < canopy::kSideBlock; ++k)
+                        mask |= uint64_t(left_of(r[k], m, s)) << k;
+                    EXPECT_EQ(canopy::left_mask(r, canopy::kSideBlock, side), mask)
+                        << "axis " << s.axis << " index " << s.index << " unit " << unit;
+                    ++checked;
+                };
+                for (uint32_t at = 0; at + canopy::kSideBlock <= refs.size(); at += canopy::kSideBlock) {
+                    one_by_one(refs.data() + at, canopy::SideTest(m, s));
+                    one_by_one(refs.data() + at, canopy::SideIndexTest<>(m, s));
+                    if (!m.prescaled) one_by_one(refs.data() + at, canopy::SideIndexTest<false>(m, s));
+                }
+            });
+        }
+    }
+    EXPECT_GT(checked, 500);
+}
+
 TEST(KernelPartition, HandMadeOrder) {
     // Centroids x: 5 0 9 1 8 2 (ids 0..5); with 2 bins over [0, 9] the ones
     // below 4.5 go left: ids 1, 3, 5, so mid = 3. In [0, 3), ids 0 and 2 go
