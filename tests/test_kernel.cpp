@@ -73,6 +73,7 @@ std::vector<PrimRef> random_refs(uint32_t n, uint32_t seed, float extent = 100.0
 
 struct Bounds {
     Box bounds, cbounds;
+    float max_area = 0.0f;
 };
 
 Bounds bounds_of(const PrimRef* refs, uint32_t begin, uint32_t end) {
@@ -81,19 +82,22 @@ Bounds bounds_of(const PrimRef* refs, uint32_t begin, uint32_t end) {
         b.bounds.extend(refs[i].lo);
         b.bounds.extend(refs[i].hi);
         b.cbounds.extend(canopy::centroid(refs[i]));
+        b.max_area = std::max(b.max_area, refs[i].area);
     }
     return b;
 }
 
-// The child bounds a partition reported are those of refs[begin, p.mid)
-// and refs[p.mid, end).
+// The child bounds a partition reported (boxes, centroid boxes, largest
+// areas) are those of refs[begin, p.mid) and refs[p.mid, end).
 void expect_child_bounds(const PartitionResult& p, const PrimRef* refs, uint32_t begin, uint32_t end) {
     const Bounds l = bounds_of(refs, begin, p.mid);
     const Bounds r = bounds_of(refs, p.mid, end);
     EXPECT_EQ(p.left_bounds(), l.bounds);
     EXPECT_EQ(p.left_cbounds(), l.cbounds);
+    EXPECT_EQ(p.left_max_area(), l.max_area);
     EXPECT_EQ(p.right_bounds(), r.bounds);
     EXPECT_EQ(p.right_cbounds(), r.cbounds);
+    EXPECT_EQ(p.right_max_area(), r.max_area);
 }
 
 NodeTask task_of(const std::vector<PrimRef>& refs, uint32_t begin, uint32_t end, uint32_t depth = 0) {
@@ -941,8 +945,10 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
                 ASSERT_TRUE(same_records(out, ref)) << "n " << c.n << " axis " << axis << " index " << idx;
                 EXPECT_EQ(merged.left_bounds(), p.left_bounds());
                 EXPECT_EQ(merged.left_cbounds(), p.left_cbounds());
+                EXPECT_EQ(merged.left_max_area(), p.left_max_area());
                 EXPECT_EQ(merged.right_bounds(), p.right_bounds());
                 EXPECT_EQ(merged.right_cbounds(), p.right_cbounds());
+                EXPECT_EQ(merged.right_max_area(), p.right_max_area());
             }
         }
     }
