@@ -1687,9 +1687,9 @@ TEST(KernelEvaluate, NodesOfAtLeast2To31PrimitivesUseTheUnsignedConversion) {
             // Scale every count so the node holds about 2^31 + 2^30 primitives.
             const uint32_t scale = uint32_t((uint64_t(3) << 30) / n);
             for (int a = 0; a < 3; ++a)
-                for (uint32_t b = 0; b < nb; ++b) bins->counts[a][b] *= scale;
+                for (uint32_t b = 0; b < nb; ++b) bins->set_count(a, b, bins->count(a, b) * scale);
             uint64_t total = 0;
-            for (uint32_t b = 0; b < nb; ++b) total += bins->counts[m.valid[0] ? 0 : m.valid[1] ? 1 : 2][b];
+            for (uint32_t b = 0; b < nb; ++b) total += bins->count(m.valid[0] ? 0 : m.valid[1] ? 1 : 2, b);
             ASSERT_GE(total, uint64_t(1) << 31);
             Split signed_sweep, u;
             EXPECT_TRUE((canopy::detail::evaluate_sweeps<0, false>(*bins, m, t.bounds, opt, signed_sweep)))
