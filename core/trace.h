@@ -27,9 +27,11 @@ struct TraceSpan {
     // How the node ran; the kinds from Start to Finish are the phases of a
     // team-parallel node (see run_parallel_node), Prepare and Place the
     // build's phases before and after the node tasks (their node is the root).
-    enum Kind : uint8_t { Task, Inline, Parallel, Start, Bin, Evaluate, Count, Mark, Swap, Finish, Prepare, Place };
-    static constexpr const char* kKindNames[] = {"task",  "inline", "parallel", "start",  "bin",     "evaluate",
-                                                 "count", "mark",   "swap",     "finish", "prepare", "place"};
+    enum Kind : uint8_t {
+        Task, Inline, Parallel, Start, Bin, Evaluate, Count, Mark, Swap, Partition, Finish, Prepare, Place
+    };
+    static constexpr const char* kKindNames[] = {"task",  "inline", "parallel",  "start",  "bin",     "evaluate", "count",
+                                                 "mark",  "swap",   "partition", "finish", "prepare", "place"};
     bool node_phase() const { return kind >= Start && kind <= Finish; }
     bool build_phase() const { return kind >= Prepare; }
     uint64_t start_ns, end_ns;  // since the log's start

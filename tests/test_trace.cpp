@@ -67,11 +67,15 @@ TEST(Trace, SpansNameTheirCanonicalNodes) {
         EXPECT_GT(kinds[TraceSpan::Parallel], 0);
         for (const TraceSpan::Kind k : {TraceSpan::Start, TraceSpan::Bin, TraceSpan::Evaluate, TraceSpan::Finish})
             EXPECT_EQ(kinds[k], kinds[TraceSpan::Parallel]) << TraceSpan::kKindNames[k];
-        // A SAH split marks sides and swaps, a middle split only counts its
-        // halves' bounds.
+        // A SAH split marks sides and swaps, or with a team of fewer than
+        // kTeamPartitionMin threads (two here) partitions on one thread; a
+        // middle split only counts its halves' bounds.
         EXPECT_EQ(kinds[TraceSpan::Mark], kinds[TraceSpan::Swap]);
-        EXPECT_EQ(kinds[TraceSpan::Mark] + kinds[TraceSpan::Count], kinds[TraceSpan::Parallel]);
-        EXPECT_GT(kinds[TraceSpan::Mark], 0);
+        EXPECT_EQ(kinds[TraceSpan::Mark] + kinds[TraceSpan::Partition] + kinds[TraceSpan::Count],
+                  kinds[TraceSpan::Parallel]);
+        static_assert(2 < canopy::ParallelNode::kTeamPartitionMin);
+        EXPECT_GT(kinds[TraceSpan::Partition], 0);
+        EXPECT_EQ(kinds[TraceSpan::Mark], 0);
     }
 }
 

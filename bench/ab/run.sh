@@ -8,22 +8,31 @@
 # into one program; tree a also loads the scenes.
 #
 #   git worktree add /tmp/old HEAD~1
-#   sh bench/ab/run.sh /tmp/old . [--rounds 9] [--builds 9] [--cold] SCENE...
+#   sh bench/ab/run.sh /tmp/old . [--rounds 9] [--builds 9] [--cold] [--keep FILE] SCENE...
 #
 # Prints per scene the median (and range) over rounds of each round's median
 # ratio b/a of neighbouring builds (< 1: tree b is faster), the fastest build
 # of each, and whether the two trees built the same BVH (exit 1 if not).
+# --keep FILE also saves the program, to run again as
+#   FILE ROUNDS BUILDS warm|cold SCENE...
+# Sequential builds only: parallel drivers run this way (two copies sharing
+# one OpenMP and one oneTBB runtime) moved by up to 10% in either direction
+# between runs of the same program, even a tree against itself.
 # Needs the build dependencies (g++, TBB, Assimp, tinyobjloader, GLM).
 set -eu
-usage() { echo "usage: $0 TREE_A TREE_B [--rounds N] [--builds N] [--cold] SCENE..." >&2; exit 2; }
+usage() {
+    echo "usage: $0 TREE_A TREE_B [--rounds N] [--builds N] [--cold] [--keep FILE] SCENE..." >&2
+    exit 2
+}
 [ $# -ge 3 ] || usage
 A=$(cd "$1" && pwd); B=$(cd "$2" && pwd); shift 2
-rounds=9; builds=9; mode=warm
+rounds=9; builds=9; mode=warm; keep=
 while [ $# -gt 0 ]; do
     case "$1" in
         --rounds) rounds=$2; shift 2 ;;
         --builds) builds=$2; shift 2 ;;
         --cold) mode=cold; shift ;;
+        --keep) keep=$2; shift 2 ;;
         -*) usage ;;
         *) break ;;
     esac
@@ -48,4 +57,5 @@ compile() {  # side tree
 echo "compiling both trees ($(wc -l < "$out/jobs") files)..." >&2
 xargs -P "$jobs" -I{} sh -c '{}' < "$out/jobs"
 c++ -o "$out/ab" "$out/main.o" "$out"/a/*.o "$out"/b/*.o -ltbb -lassimp -ltinyobjloader -fopenmp -pthread
+[ -z "$keep" ] || cp "$out/ab" "$keep"
 "$out/ab" "$rounds" "$builds" "$mode" "$@"
