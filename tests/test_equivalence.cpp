@@ -287,7 +287,9 @@ TEST(EquivalenceSlow, SharedScenes) {
 
 // Nodes of 2^19 records and more (four times the bins), and team-parallel
 // nodes of more than 32 chunks of ParallelNode::kChunk records (the sphere's
-// root: longer chunks, each bin set accumulating several of them).
+// root: longer chunks, each bin set accumulating several of them), at two
+// threads (partitioned on one thread) and at four (marked and swapped by
+// chunks, see ParallelNode::kTeamPartitionMin).
 TEST(EquivalenceSlow, MillionTriangleScenes) {
     for (const char* spec : {"gen:sphere:1200000", "gen:stadium:1000000"}) {
         const Scene scene = load_scene(spec);
@@ -296,10 +298,12 @@ TEST(EquivalenceSlow, MillionTriangleScenes) {
         opt.threads = 1;
         const Bvh ref = build<Sequential>(view, opt);
         ASSERT_TRUE(validate(ref, view, opt).ok()) << spec;
-        for (const SchedulerEntry& s : tested_schedulers()) {
-            opt.threads = 2;
-            expect_same(ref, s.build_triangles(view, opt, nullptr), std::string(spec) + " " + s.name);
-        }
+        for (const SchedulerEntry& s : tested_schedulers())
+            for (const uint32_t threads : {2u, 4u}) {
+                opt.threads = threads;
+                expect_same(ref, s.build_triangles(view, opt, nullptr),
+                            std::string(spec) + " " + s.name + " threads " + std::to_string(threads));
+            }
     }
 }
 
