@@ -193,7 +193,9 @@ struct MinBox {
     // of() with lane 3 all ones (a NaN): a minimum whose first operand it is
     // returns the second operand's lane 3 unchanged, whatever its bits
     // (MINPS returns the second operand when either is a NaN). The bins
-    // keep their count there (see BinArrays).
+    // keep their count there (see BinArrays). That operand order is the
+    // reverse of grow()'s, which matters only on a tie of +0 and -0: the
+    // records hold no -0 (prepare makes it +0), so the boxes are the same.
     static __m256 counted(const PrimRef& r) {
         const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1));
         constexpr int32_t s = std::numeric_limits<int32_t>::min();
