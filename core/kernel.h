@@ -401,8 +401,9 @@ struct BinMapper {
 // separate increment in memory: half the stores. Measured against separate
 // counts (bench/ab/run.sh: warm sequential builds of both versions in one
 // process, alternated build by build; medians of per-round ratios, several
-// runs): the cow 0.96x to 0.97x as long, dragon_vrip_res2 0.97x (one run
-// 1.00x), the 1M sphere 0.98x; the fastest builds 0.96x to 0.98x.
+// runs): the cow 0.96x to 0.97x as long (one run 1.005x), dragon_vrip_res2
+// 0.97x (one run 1.00x), the 1M sphere 0.94x to 0.98x (one run 1.02x); in
+// the reverse order old/new 1.01x to 1.04x.
 // (Otherwise: counts[axis][b]. Stored bin-major instead, so that evaluate()
 // could load a bin's three counts as one vector, the sequential dragon build
 // took 1% to 2% longer in three alternated comparisons; why is not known.)
@@ -414,11 +415,14 @@ struct BinMapper {
 struct BinArrays {
     simd::MinBox bounds[3][kMaxBins];  // (lo, -hi): see simd::MinBox
 #if CANOPY_PACKED_COUNTS
-    static __m256 empty_bin() {
+    // An empty bin: an empty box with count 0.
+    static simd::MinBox empty() {
         const float inf = std::numeric_limits<float>::infinity();
-        return _mm256_setr_ps(inf, inf, inf, 0.0f, inf, inf, inf, inf);  // count 0
+        return simd::MinBox{_mm256_setr_ps(inf, inf, inf, 0.0f, inf, inf, inf, inf)};
     }
-    // Adds a record (MinBox::counted()) to bin k of an axis.
+    // What add() takes for a record.
+    static __m256 record(const PrimRef& x) { return simd::MinBox::counted(x); }
+    // Adds a record (record()) to bin k of an axis.
     void add(int axis, int32_t k, __m256 rec) {
         simd::MinBox& b = bounds[axis][k];
         const __m256i one = _mm256_setr_epi32(0, 0, 0, 1, 0, 0, 0, 0);
@@ -440,7 +444,9 @@ struct BinArrays {
     }
 #else
     uint32_t counts[3][kMaxBins];
-    template <class Rec>  // MinBox::of()
+    static simd::MinBox empty() { return simd::MinBox{}; }
+    static auto record(const PrimRef& x) { return simd::MinBox::of(x); }
+    template <class Rec>  // record()
     void add(int axis, int32_t k, const Rec& rec) {
         bounds[axis][k].grow(rec);
         counts[axis][k]++;
@@ -455,14 +461,10 @@ struct BinArrays {
         // most nodes have 4 bins; std::fill_n became a memset call per axis
         // for the counts and a loop of one box per turn for the boxes.
         static_assert(kMaxBins % 4 == 0);
-#if CANOPY_PACKED_COUNTS
-        const simd::MinBox empty{empty_bin()};
-#else
-        const simd::MinBox empty{};
-#endif
+        const simd::MinBox none = empty();
         for (int a = 0; a < 3; ++a)
             for (uint32_t b = 0; b < bins; b += 4) {
-                bounds[a][b] = bounds[a][b + 1] = bounds[a][b + 2] = bounds[a][b + 3] = empty;
+                bounds[a][b] = bounds[a][b + 1] = bounds[a][b + 2] = bounds[a][b + 3] = none;
 #if !CANOPY_PACKED_COUNTS
                 _mm_storeu_si128(reinterpret_cast<__m128i*>(counts[a] + b), _mm_setzero_si128());
 #endif
@@ -534,15 +536,8 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
     int axes[3], na = 0;
     for (int a = 0; a < 3; ++a)
         if (m.valid[a]) axes[na++] = a;
-    const auto record = [](const PrimRef& x) {
-#if CANOPY_PACKED_COUNTS
-        return simd::MinBox::counted(x);
-#else
-        return simd::MinBox::of(x);
-#endif
-    };
-    const auto update = [&](BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
-        const auto box = record(x);
+    const auto update = [](BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
+        const auto box = BinArrays::record(x);
         set.add(0, ki[0], box);
         set.add(1, ki[1], box);
         set.add(2, ki[2], box);
@@ -591,7 +586,7 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
             for (uint32_t i = 0; i < n; ++i) update(out, r[i], k[i]);
         } else {
             for (uint32_t i = 0; i < n; ++i) {
-                const auto box = record(r[i]);
+                const auto box = BinArrays::record(r[i]);
                 for (int j = 0; j < na; ++j) out.add(axes[j], k[i][axes[j]], box);
             }
         }
@@ -703,14 +698,10 @@ bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bou
     const __m128i zero = _mm_setzero_si128();
     const auto to_float = [](__m128i c) { return Huge ? simd::to_float(c) : _mm_cvtepi32_ps(c); };
     __m128 right_cost[Fixed ? Fixed : kMaxBins];  // A_R n_R of the split before bin b; -1: empty
-    // The sweeps' boxes start empty. With packed counts their lane 3 starts
-    // at 0, so that the minimum with the bins' counts (small integers, as
-    // floats subnormal) stays 0: Measure then computes with no subnormal.
-#if CANOPY_PACKED_COUNTS
-    const simd::MinBox empty{BinArrays::empty_bin()};
-#else
-    const simd::MinBox empty{};
-#endif
+    // The sweeps' boxes start as empty bins. With packed counts their lane 3
+    // starts at 0, so that the minimum with the bins' counts (small integers,
+    // as floats subnormal) stays 0: Measure then computes with no subnormal.
+    const simd::MinBox empty = BinArrays::empty();
     simd::MinBox acc[3] = {empty, empty, empty};
     __m128i n = zero;
     for (uint32_t b = nb - 1; b > 0; --b) {
