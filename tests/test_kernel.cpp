@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <numeric>
 #include <cfloat>
@@ -442,15 +443,32 @@ TEST(KernelBin, CountsAndBoxesMatchTheMapping) {
     // The whole range takes bin()'s two-set path, [0, 123) the one-set path
     // and [123, n) the two-set path with an odd count; at unit scale and
     // at 2^-80, where every extent is below 2^-64 and the mapping prescales
-    // (bin()'s other loops).
+    // (bin()'s other loops). Each case also with the records sorted by
+    // their three bin indices, so that runs of neighbours share all their
+    // bins (the two-set path adds such runs of two and four as one).
     constexpr uint32_t n = 500;
     static_assert(n - 123 >= canopy::kTwoBinSetsMin && 123 < canopy::kTwoBinSetsMin && (n - 123) % 2 == 1);
     const std::pair<float, uint32_t> cases[] = {{1.0f, 2}, {1.0f, 7}, {1.0f, 16}, {1.0f, 256},
                                                 {0x1p-80f, 2}, {0x1p-80f, 7}, {0x1p-80f, 16}, {0x1p-80f, 256}};
-    for (const auto& [unit, nb] : cases) {
-        const std::vector<PrimRef> refs = random_refs(n, 5, 100.0f * unit, 2.0f * unit);
+    for (const auto& [unit, nb] : cases)
+    for (const bool sorted : {false, true}) {
+        std::vector<PrimRef> refs = random_refs(n, 5, 100.0f * unit, 2.0f * unit);
         const Bounds b = bounds_of(refs.data(), 0, n);
         const BinMapper m = BinMapper::make(b.cbounds, nb);
+        if (sorted) {
+            const auto key = [&](const PrimRef& r) {
+                const Vec3 c = canopy::centroid(r);
+                return std::array<uint32_t, 3>{bin_index(m, c, 0), bin_index(m, c, 1), bin_index(m, c, 2)};
+            };
+            // (std::sort: libstdc++'s stable_sort takes a buffer from plain
+            // operator new, not aligned for the 32-byte PrimRef.)
+            std::sort(refs.begin(), refs.end(), [&](const PrimRef& x, const PrimRef& y) {
+                return std::pair(key(x), x.id) < std::pair(key(y), y.id);
+            });
+            uint32_t runs = 0;
+            for (uint32_t i = 1; i < n; ++i) runs += key(refs[i]) != key(refs[i - 1]);
+            if (nb == 2) ASSERT_LE(runs, 7u) << "eight runs of equal bins";
+        }
         ASSERT_TRUE(m.valid[0] && m.valid[1] && m.valid[2]);
         ASSERT_EQ(m.prescaled, unit != 1.0f);
         const auto bins = binned(refs, 0, n, m);
