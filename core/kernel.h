@@ -542,8 +542,9 @@ namespace detail {
 // twos, on random triangles none. Exact (minima and integer sums), so the
 // same bins; only the operands' order of a minimum changes, which matters
 // for a tie of +0 and -0 alone, and the records hold no -0 (see
-// simd::MinBox::counted()). bench/ab/run.sh against one update per record
-// (9 rounds of 5 warm sequential builds, medians of per-round ratios): 1M
+// simd::MinBox::counted()). bench/ab/run.sh against one update per record,
+// on the Intel Xeon host of 2026-12-04 (9 rounds of 5 warm sequential
+// builds, medians of per-round ratios): 1M
 // sphere 0.92x (pairs alone 0.955x), 1M stadium 0.90x, 1M random triangles
 // 1.00x (in other runs 1.01x to 1.02x: the comparisons), dragon 1.01x, the
 // cow 0.98x (the cow and dragon within their noise). The same merging
