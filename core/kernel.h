@@ -122,6 +122,16 @@ inline __m128 centroid(__m128 lo, __m128 hi) {
     const __m128 half = _mm_set1_ps(0.5f);
     return _mm_add_ps(_mm_add_ps(_mm_mul_ps(lo, half), _mm_mul_ps(hi, half)), _mm_setzero_ps());
 }
+#if defined(__AVX__)
+// xyz_mask() in both 128-bit halves.
+inline __m256 xyz_mask2() { return _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1)); }
+// centroid() of two boxes at once, one in each 128-bit half (lane 3 of lo
+// and hi cleared): lane for lane the same IEEE operations.
+inline __m256 centroid2(__m256 lo, __m256 hi) {
+    const __m256 half = _mm256_set1_ps(0.5f);
+    return _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(lo, half), _mm256_mul_ps(hi, half)), _mm256_setzero_ps());
+}
+#endif
 inline __m128 vec(const Vec3& v) { return _mm_set_ps(0.0f, v.z, v.y, v.x); }
 inline Vec3 vec3(__m128 v) {
     alignas(16) float f[4];
@@ -181,7 +191,7 @@ struct MinBox {
     __m256 v = _mm256_set1_ps(std::numeric_limits<float>::infinity());
     // A record's (lo, -hi), both with lane 3 cleared.
     static __m256 of(const PrimRef& r) {
-        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1));
+        const __m256 keep = xyz_mask2();
         constexpr int32_t s = std::numeric_limits<int32_t>::min();  // the sign bit
         const __m256 sign = _mm256_castsi256_ps(_mm256_set_epi32(0, s, s, s, 0, 0, 0, 0));
         return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), sign);
@@ -197,7 +207,7 @@ struct MinBox {
     // reverse of grow()'s, which matters only on a tie of +0 and -0: the
     // records hold no -0 (prepare makes it +0), so the boxes are the same.
     static __m256 counted(const PrimRef& r) {
-        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1));
+        const __m256 keep = xyz_mask2();
         constexpr int32_t s = std::numeric_limits<int32_t>::min();
         const __m256 flip = _mm256_castsi256_ps(_mm256_set_epi32(0, s, s, s, -1, 0, 0, 0));
         return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), flip);
@@ -531,6 +541,14 @@ inline constexpr uint32_t kTwoBinSetsMin = 256;
 
 namespace detail {
 
+// Adds record x to set's bins ki on all three axes.
+inline void update(BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
+    const auto box = BinArrays::record(x);
+    set.add(0, ki[0], box);
+    set.add(1, ki[1], box);
+    set.add(2, ki[2], box);
+}
+
 // The bin updates of a block of records whose indices are in k (bin()'s
 // two-set path): record i goes to set s0 for even i and s1 for odd i, except
 // that four aligned neighbours (or two) with the same bins on all three axes
@@ -551,12 +569,6 @@ namespace detail {
 // in the one-set path (ranges under kTwoBinSetsMin) was slower everywhere
 // (1.02x to 1.03x), and eights on top of fours gained nothing (1.00x).
 inline void merged_updates(BinArrays& s0, BinArrays& s1, const PrimRef* r, const int32_t (*k)[4], uint32_t n) {
-    const auto update = [](BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
-        const auto box = BinArrays::record(x);
-        set.add(0, ki[0], box);
-        set.add(1, ki[1], box);
-        set.add(2, ki[2], box);
-    };
     uint32_t i = 0;
 #if CANOPY_PACKED_COUNTS
     const auto row = [&](uint32_t j) { return _mm_load_si128(reinterpret_cast<const __m128i*>(k[j])); };
@@ -631,16 +643,13 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         // pairs, medians of 7 to 11 pairs): 1M sphere 0.945x as long,
         // dragon_vrip_res2 0.994x, the cow 0.98x.
         {
-            const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1));
-            const __m256 half = _mm256_set1_ps(0.5f);
+            const __m256 keep = simd::xyz_mask2();
             const __m256 o = _mm256_set_m128(m.origin4, m.origin4), p = _mm256_set_m128(m.prescale4, m.prescale4);
             const __m256 sc = _mm256_set_m128(m.scale4, m.scale4), last = _mm256_set_m128(m.last4, m.last4);
             for (; i0 + 1 < n; i0 += 2) {
                 const __m256 lo = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].lo.x, &r[i0].lo.x), keep);
                 const __m256 hi = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].hi.x, &r[i0].hi.x), keep);
-                const __m256 c = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(lo, half), _mm256_mul_ps(hi, half)),
-                                               _mm256_setzero_ps());
-                __m256 f = _mm256_sub_ps(c, o);
+                __m256 f = _mm256_sub_ps(simd::centroid2(lo, hi), o);
                 if constexpr (Pre) f = _mm256_mul_ps(f, p);
                 f = _mm256_mul_ps(f, sc);
                 f = _mm256_min_ps(_mm256_max_ps(f, _mm256_setzero_ps()), last);
@@ -656,12 +665,7 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         } else if (na == 3) {
             // The common case, unrolled: the three axes' updates are
             // independent chains.
-            for (uint32_t i = 0; i < n; ++i) {
-                const auto box = BinArrays::record(r[i]);
-                out.add(0, k[i][0], box);
-                out.add(1, k[i][1], box);
-                out.add(2, k[i][2], box);
-            }
+            for (uint32_t i = 0; i < n; ++i) update(out, r[i], k[i]);
         } else {
             for (uint32_t i = 0; i < n; ++i) {
                 const auto box = BinArrays::record(r[i]);
@@ -1203,60 +1207,42 @@ inline uint64_t block_bits(uint32_t n) { return n >= 64 ? ~uint64_t(0) : (uint64
 // there.)
 template <int Side>
 inline void grow_side(const PrimRef* r, uint64_t bits, ChildBounds4& acc) {
+    const auto one = [&](const PrimRef& x, ChildBounds4& into) {
+        const __m128 lo = simd::lo(x);
+        into.add(Side, lo, simd::hi_area(x), simd::centroid(lo, simd::hi(x)));
+    };
 #if defined(__AVX2__)
-    {
-        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1));
-        const __m256 half = _mm256_set1_ps(0.5f);
-        __m256 bmin = _mm256_set1_ps(std::numeric_limits<float>::infinity());
-        __m256 bmax = _mm256_set1_ps(-std::numeric_limits<float>::infinity());
-        __m256 cmin = bmin, cmax = bmax;
-        for (; bits & (bits - 1); bits &= bits - 1) {
-            const __m256 va = _mm256_load_ps(&r[std::countr_zero(bits)].lo.x);
-            bits &= bits - 1;
-            const __m256 vb = _mm256_load_ps(&r[std::countr_zero(bits)].lo.x);
-            const __m256 lo2 = _mm256_and_ps(_mm256_permute2f128_ps(va, vb, 0x20), keep);  // (lo a, lo b)
-            const __m256 ha2 = _mm256_permute2f128_ps(va, vb, 0x31);                        // (hi a, hi b), areas
-            const __m256 c2 = _mm256_add_ps(
-                _mm256_add_ps(_mm256_mul_ps(lo2, half), _mm256_mul_ps(_mm256_and_ps(ha2, keep), half)),
-                _mm256_setzero_ps());
-            bmin = _mm256_min_ps(bmin, lo2);
-            bmax = _mm256_max_ps(bmax, ha2);
-            cmin = _mm256_min_ps(cmin, c2);
-            cmax = _mm256_max_ps(cmax, c2);
-        }
-        if (bits) {
-            const PrimRef& x = r[std::countr_zero(bits)];
-            const __m128 lo = simd::lo(x);
-            const __m128 c = simd::centroid(lo, simd::hi(x));
-            acc.bounds[Side].grow(lo, simd::hi_area(x));
-            acc.cbounds[Side].grow(c, c);
-        }
-        const auto lo128 = [](__m256 v) { return _mm256_castps256_ps128(v); };
-        const auto hi128 = [](__m256 v) { return _mm256_extractf128_ps(v, 1); };
-        acc.bounds[Side].grow(_mm_min_ps(lo128(bmin), hi128(bmin)), _mm_max_ps(lo128(bmax), hi128(bmax)));
-        acc.cbounds[Side].grow(_mm_min_ps(lo128(cmin), hi128(cmin)), _mm_max_ps(lo128(cmax), hi128(cmax)));
-        return;
+    const __m256 keep = simd::xyz_mask2();
+    __m256 bmin = _mm256_set1_ps(std::numeric_limits<float>::infinity());
+    __m256 bmax = _mm256_set1_ps(-std::numeric_limits<float>::infinity());
+    __m256 cmin = bmin, cmax = bmax;
+    for (; bits & (bits - 1); bits &= bits - 1) {
+        const __m256 va = _mm256_load_ps(&r[std::countr_zero(bits)].lo.x);
+        bits &= bits - 1;
+        const __m256 vb = _mm256_load_ps(&r[std::countr_zero(bits)].lo.x);
+        const __m256 lo2 = _mm256_and_ps(_mm256_permute2f128_ps(va, vb, 0x20), keep);  // (lo a, lo b)
+        const __m256 ha2 = _mm256_permute2f128_ps(va, vb, 0x31);                        // (hi a, hi b), areas
+        const __m256 c2 = simd::centroid2(lo2, _mm256_and_ps(ha2, keep));
+        bmin = _mm256_min_ps(bmin, lo2);
+        bmax = _mm256_max_ps(bmax, ha2);
+        cmin = _mm256_min_ps(cmin, c2);
+        cmax = _mm256_max_ps(cmax, c2);
     }
-#endif
-    simd::Box4 b2, c2;
+    if (bits) one(r[std::countr_zero(bits)], acc);
+    const auto lo128 = [](__m256 v) { return _mm256_castps256_ps128(v); };
+    const auto hi128 = [](__m256 v) { return _mm256_extractf128_ps(v, 1); };
+    acc.bounds[Side].grow(_mm_min_ps(lo128(bmin), hi128(bmin)), _mm_max_ps(lo128(bmax), hi128(bmax)));
+    acc.cbounds[Side].grow(_mm_min_ps(lo128(cmin), hi128(cmin)), _mm_max_ps(lo128(cmax), hi128(cmax)));
+#else
+    ChildBounds4 second;
     for (; bits; bits &= bits - 1) {
-        {
-            const PrimRef& x = r[std::countr_zero(bits)];
-            const __m128 lo = simd::lo(x);
-            const __m128 c = simd::centroid(lo, simd::hi(x));
-            acc.bounds[Side].grow(lo, simd::hi_area(x));
-            acc.cbounds[Side].grow(c, c);
-        }
+        one(r[std::countr_zero(bits)], acc);
         bits &= bits - 1;
         if (!bits) break;
-        const PrimRef& x = r[std::countr_zero(bits)];
-        const __m128 lo = simd::lo(x);
-        const __m128 c = simd::centroid(lo, simd::hi(x));
-        b2.grow(lo, simd::hi_area(x));
-        c2.grow(c, c);
+        one(r[std::countr_zero(bits)], second);
     }
-    acc.bounds[Side].grow(b2);
-    acc.cbounds[Side].grow(c2);
+    acc.merge(second);
+#endif
 }
 
 // The side mask of a block of n <= kSideBlock records, with their bounds

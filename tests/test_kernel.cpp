@@ -467,7 +467,9 @@ TEST(KernelBin, CountsAndBoxesMatchTheMapping) {
             });
             uint32_t runs = 0;
             for (uint32_t i = 1; i < n; ++i) runs += key(refs[i]) != key(refs[i - 1]);
-            if (nb == 2) ASSERT_LE(runs, 7u) << "eight runs of equal bins";
+            if (nb == 2) {
+                ASSERT_LE(runs, 7u) << "eight runs of equal bins";
+            }
         }
         ASSERT_TRUE(m.valid[0] && m.valid[1] && m.valid[2]);
         ASSERT_EQ(m.prescaled, unit != 1.0f);
