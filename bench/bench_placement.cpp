@@ -112,7 +112,7 @@ void run_in_arena(BuildState& st, Body&& body) {
     st.stats.threads_used = threads;
     tbb::task_arena arena(static_cast<int>(threads));
     arena.execute([&] {
-        sched::prepare_parallel(st, TbbForEach{});
+        sched::prepare_parallel(st, threads, TbbForEach{});
         body(threads);
     });
 }

@@ -32,8 +32,11 @@ namespace canopy {
 
 class ParallelNode {
 public:
-    // Records per chunk (bin and mark): at least kChunk, and big enough that
-    // a node has at most kMaxChunks chunks; a multiple of 64.
+    // Records per chunk (bin and mark): a multiple of 64, about kChunk or
+    // more, such that a node has at most kMaxChunks chunks and, below that,
+    // a multiple of the team's size of them (equal shares: the dragon's
+    // root in chunks of 32,768 was seven chunks, four of them on one of two
+    // threads).
     static constexpr uint32_t kChunk = 32768;
     static constexpr uint32_t kMaxChunks = 32;
     static constexpr uint32_t kSwapPiece = 16384;  // misplaced pairs per swap piece
@@ -86,8 +89,10 @@ private:
             }
         }
         ++skip.parallel_nodes;
-        const uint32_t per_max = static_cast<uint32_t>((uint64_t(t_.size()) + kMaxChunks - 1) / kMaxChunks);
-        chunk_size_ = std::max(kChunk, (per_max + 63) / 64 * 64);
+        const uint64_t size = t_.size(), team_chunk = uint64_t(team_) * kChunk;
+        uint64_t want = std::max<uint64_t>(1, (size + team_chunk - 1) / team_chunk) * team_;
+        if (want > kMaxChunks) want = std::max<uint64_t>(team_, kMaxChunks / team_ * team_);
+        chunk_size_ = static_cast<uint32_t>(((size + want - 1) / want + 63) / 64 * 64);
         chunks_ = static_cast<uint32_t>((uint64_t(t_.size()) + chunk_size_ - 1) / chunk_size_);
         const uint32_t binned = plan_ == Plan::Sah ? chunks_ : 0;
         chunk_sizes_.assign(sizes_ ? binned : 0, SizeBins{});

@@ -19,7 +19,7 @@
 
 namespace canopy::sched {
 
-inline constexpr uint32_t kPrepareBlock = 65536;  // primitives per prepare block
+inline constexpr uint32_t kPrepareBlock = 65536;  // most primitives per prepare block
 
 // Threads worth starting for the build: at most the bound asked for, and
 // none beyond what the work can use (small scenes start no threads at all).
@@ -77,14 +77,22 @@ inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& 
 }
 
 // Prepares the primitives with for_each over blocks (any order, any
-// thread): the merged summary is order-independent.
+// thread): the merged summary is order-independent. The blocks are of equal
+// size and come in a multiple of `threads`, so that every thread gets the
+// same share (with blocks of a fixed 65,536, the dragon's 202,520 triangles
+// made four blocks, the last of 6,000, and one of two threads prepared
+// two thirds of them).
 template <class ForEach>
-void prepare_parallel(BuildState& st, ForEach&& for_each) {
+void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
     const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
-    const uint32_t blocks = (st.n + kPrepareBlock - 1) / kPrepareBlock;
+    const uint32_t t = std::max(1u, threads);
+    const uint32_t rounds = static_cast<uint32_t>((uint64_t(st.n) + uint64_t(t) * kPrepareBlock - 1) /
+                                                  (uint64_t(t) * kPrepareBlock));
+    const uint32_t blocks = std::max(1u, rounds * t);
+    const uint32_t per = static_cast<uint32_t>((uint64_t(st.n) + blocks - 1) / blocks);
     std::vector<PrepareSummary> part(blocks);
     for_each(blocks, [&](uint32_t b) {
-        const size_t lo = size_t(b) * kPrepareBlock, hi = std::min<size_t>(st.n, lo + kPrepareBlock);
+        const size_t lo = std::min<size_t>(st.n, size_t(b) * per), hi = std::min<size_t>(st.n, lo + per);
         part[b] = st.prepare_range(lo, hi);
     });
     PrepareSummary all;

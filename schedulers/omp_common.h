@@ -101,7 +101,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
 template <class Body>
 void omp_build(BuildState& st, uint32_t threads, Body&& body) {
     st.stats.threads_used = threads;
-    prepare_parallel(st, OmpLoop{threads});
+    prepare_parallel(st, threads, OmpLoop{threads});
     Workers& workers = st.workers;
     workers.reset(threads, st.n, st.options.tuning.chunk_nodes);
 #pragma omp parallel num_threads(threads)

@@ -33,7 +33,7 @@ struct Tbb {
                     for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
                 });
             };
-            sched::prepare_parallel(st, for_each);
+            sched::prepare_parallel(st, threads, for_each);
             // Slots are indexed by the arena's thread index, unique per thread.
             sched::Workers& workers = st.workers;
             workers.reset(static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()), st.n,
