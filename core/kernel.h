@@ -1364,6 +1364,120 @@ inline PartitionResult mark_sides(const PrimRef* refs, uint32_t b, uint32_t e, u
     });
 }
 
+// The partition of a node by two threads, each reading half of the records
+// once (a team of two or three; see ParallelNode). The same pairs as
+// partition(): with M misplaced records in each part, the k-th going right
+// in [b, mid) trades places with the k-th going left in [mid, e). The front
+// half (side 0) pairs ranks upward from 0 over [b, ql) and [mid, qr), in
+// position order as partition() does; the back half (side 1) pairs ranks
+// downward from M - 1 over [ql, mid) and [qr, e), walking its blocks from
+// the end and taking the highest bits first. A half whose two parts held
+// unequal numbers of misplaced records (a and a', a > a') keeps a - a' of
+// them unpaired in one part: ranks a'..a-1 of that part. The other half
+// then keeps the same ranks of the other part (the counts of both parts sum
+// to M), so the leftovers of the two halves pair with each other, rank for
+// rank, in swap_leftovers(). Child bounds are grown as the records are read
+// and merged exactly, as in mark_sides().
+struct HalfLeftovers {
+    // Unpaired misplaced records, ascending rank: blocks as (first record,
+    // bits relative to it).
+    std::vector<std::pair<uint32_t, uint64_t>> blocks;
+    uint32_t count = 0;
+
+    void clear() {
+        blocks.clear();
+        count = 0;
+    }
+    void add(uint32_t first, uint64_t bits) {
+        if (!bits) return;
+        blocks.push_back({first, bits});
+        count += uint32_t(std::popcount(bits));
+    }
+};
+
+// Side 0: [b, ql) and [mid, qr); side 1: [ql, mid) and [qr, e).
+template <int Side, class Test>
+PartitionResult partition_half(PrimRef* refs, uint32_t b, uint32_t ql, uint32_t mid, uint32_t qr, uint32_t e,
+                               const Test& side, HalfLeftovers& left_over) {
+    ChildBounds4 acc;
+    left_over.clear();
+    // A cursor in each part's share, with its current block's misplaced
+    // records as bits (mi: going right in the left part, mj: going left in
+    // the right part). The front half steps up, the back half down.
+    const uint32_t li0 = Side == 0 ? b : ql, li1 = Side == 0 ? ql : mid;
+    const uint32_t rj0 = Side == 0 ? mid : qr, rj1 = Side == 0 ? qr : e;
+    uint32_t i = Side == 0 ? li0 : li1, j = Side == 0 ? rj0 : rj1;  // next block's bound
+    uint32_t bi = 0, bj = 0;                                        // current blocks' first records
+    uint64_t mi = 0, mj = 0;
+    const auto next_left = [&]() -> bool {
+        if (Side == 0 ? i >= li1 : i <= li0) return false;
+        const uint32_t n = Side == 0 ? std::min(kSideBlock, li1 - i) : std::min(kSideBlock, i - li0);
+        bi = Side == 0 ? i : i - n;
+        mi = ~mark_block(refs + bi, n, side, acc) & block_bits(n);
+        i = Side == 0 ? i + n : i - n;
+        return true;
+    };
+    const auto next_right = [&]() -> bool {
+        if (Side == 0 ? j >= rj1 : j <= rj0) return false;
+        const uint32_t n = Side == 0 ? std::min(kSideBlock, rj1 - j) : std::min(kSideBlock, j - rj0);
+        bj = Side == 0 ? j : j - n;
+        mj = mark_block(refs + bj, n, side, acc);
+        j = Side == 0 ? j + n : j - n;
+        return true;
+    };
+    const auto take = [](uint64_t& m) {  // the pair's bit: lowest up, highest down
+        const uint32_t k = Side == 0 ? uint32_t(std::countr_zero(m)) : 63u - uint32_t(std::countl_zero(m));
+        m &= ~(uint64_t(1) << k);
+        return k;
+    };
+    for (;;) {
+        if (!mi && !next_left()) break;
+        if (!mj && !next_right()) break;
+        for (; mi && mj;) {
+            const uint32_t x = take(mi), y = take(mj);
+            swap_refs(refs[bi + x], refs[bj + y]);
+        }
+    }
+    // At most one part has misplaced records left: its pending block and
+    // the blocks not read yet (the other part's are all read).
+    std::vector<std::pair<uint32_t, uint64_t>>& out = left_over.blocks;
+    if (mi) left_over.add(bi, mi);
+    while (next_left()) left_over.add(bi, mi);
+    mi = 0;
+    if (mj) left_over.add(bj, mj);
+    while (next_right()) left_over.add(bj, mj);
+    mj = 0;
+    if (Side == 1) std::reverse(out.begin(), out.end());  // found from the highest rank down
+    return result_of(acc, 0);
+}
+
+// Pairs the two halves' leftovers rank for rank (equally many).
+inline void swap_leftovers(PrimRef* refs, const HalfLeftovers& front, const HalfLeftovers& back) {
+    size_t fb = 0, bb = 0;
+    uint64_t fm = 0, bm = 0;
+    for (uint32_t k = 0; k < front.count; ++k) {
+        if (!fm) fm = front.blocks[fb++].second;
+        if (!bm) bm = back.blocks[bb++].second;
+        swap_refs(refs[front.blocks[fb - 1].first + uint32_t(std::countr_zero(fm))],
+                  refs[back.blocks[bb - 1].first + uint32_t(std::countr_zero(bm))]);
+        fm &= fm - 1;
+        bm &= bm - 1;
+    }
+}
+
+// One half of the two-ended partition of refs[begin, end) split at mid, with
+// the split's side test; the halves' shares of the parts are cut at their
+// middles.
+template <int Side>
+PartitionResult partition_half(PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, const Split& s,
+                               HalfLeftovers& left_over) {
+    const uint32_t mid = begin + s.left_count;
+    const uint32_t ql = begin + (mid - begin) / 2, qr = mid + (end - mid) / 2;
+    return with_side_test(m, s, [&](const auto& side) {
+        return partition_half<Side>(refs, begin, ql, mid, qr, end, side, left_over);
+    });
+}
+
 // A run of misplaced pairs: the first pair's positions in the left part and
 // in the right part, and how many pairs.
 struct SwapPiece {

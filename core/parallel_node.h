@@ -13,8 +13,10 @@
 //    share of the child bounds (merged exactly too); one thread cuts the
 //    misplaced pairs into pieces by rank, and the pieces are swapped in
 //    parallel. Bin, mark and swap: the swap pass touches only the misplaced
-//    records. Teams of fewer than kTeamPartitionMin threads bin in parallel
-//    but partition on one thread (partition() itself).
+//    records. Teams of fewer than kTeamPartitionMin threads partition by
+//    halves instead (partition_half() in kernel.h): two threads each read
+//    half of the records once, pairing misplaced records from either end
+//    of the rank order, and one pairs what the two left over.
 // It bins every node it is given, so it is given none of the small nodes
 // that run_node() costs exactly (kExactMaxPrims; sched::team_parallel()).
 #pragma once
@@ -40,14 +42,18 @@ public:
     static constexpr uint32_t kChunk = 32768;
     static constexpr uint32_t kMaxChunks = 32;
     static constexpr uint32_t kSwapPiece = 16384;  // misplaced pairs per swap piece
-    // Teams smaller than this partition a node on one thread, with
-    // partition() in a serial phase, instead of marking sides and swapping
-    // by chunks. The chunked partition reads the records twice (mark, then
-    // swap) and the sequential one once, swapping each block's misplaced
-    // records while they are in cache; on this 2-core machine the chunked
-    // partition of the 1M sphere's root took longer with two threads (mark
-    // 1.1 to 1.5 ms, swap 3.4 ms, traced) than partition() with one (3.4 to
-    // 3.6 ms). The binning stays parallel; the result is the same either way.
+    // Teams smaller than this partition a node by halves (two threads,
+    // partition_half() and swap_leftovers()) instead of marking sides and
+    // swapping by chunks. The chunked partition reads the records twice
+    // (mark, then swap), the halves once, swapping each block's misplaced
+    // records while they are in cache; on this project's 2-core machines the
+    // chunked partition of the 1M sphere's root took longer with two
+    // threads (mark 1.1 to 1.5 ms, swap 3.4 ms, traced) than partition()
+    // with one (3.4 to 3.6 ms), and until 2026-12-04 (evening) a team of two
+    // partitioned on one thread. By halves, on the Intel host (traced 2-thread
+    // builds, three each): the 1M sphere's root 1.9 to 2.1 ms against 3.2 to
+    // 3.4 on one thread, dragon_vrip_res2's 0.31 to 0.42 against 0.51 to
+    // 0.67. The result is the same every way.
     static constexpr uint32_t kTeamPartitionMin = 4;
 
     // `team`: how many threads will run the parallel phases (a hint: the
@@ -117,7 +123,10 @@ private:
             plan_ = Plan::Middle;
             return true;
         }
-        if (!partitions_alone()) sides_.resize((t_.size() + kSideBlock - 1) / kSideBlock);
+        if (partitions_by_halves())
+            chunk_.assign(2, PartitionResult{});
+        else
+            sides_.resize((t_.size() + kSideBlock - 1) / kSideBlock);
         return true;
     }
 
@@ -137,11 +146,18 @@ public:
     bool moves() const { return plan_ == Plan::Sah; }
     uint32_t chunks() const { return chunks_; }
 
-    // Whether the records are partitioned by partition_alone() rather than
-    // by mark_chunk() and swap_piece() (see kTeamPartitionMin).
-    bool partitions_alone() const { return team_ < kTeamPartitionMin; }
-    // Serial, SAH splits of a small team: the whole partition.
-    void partition_alone() { chunk_.assign(1, partition(ctx_.refs, t_.begin, t_.end, m_, split_)); }
+    // Whether the records are partitioned by halves (partition_half() and
+    // pair_leftovers()) rather than by mark_chunk() and swap_piece() (see
+    // kTeamPartitionMin).
+    bool partitions_by_halves() const { return team_ < kTeamPartitionMin; }
+    // Parallel over [0, 2), SAH splits of a small team: one half of the
+    // two-ended partition (kernel.h).
+    void partition_half(uint32_t i) {
+        chunk_[i] = i == 0 ? canopy::partition_half<0>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[0])
+                           : canopy::partition_half<1>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[1]);
+    }
+    // Serial, after both halves: swaps the pairs they left.
+    void pair_leftovers() { swap_leftovers(ctx_.refs, halves_[0], halves_[1]); }
 
     // Parallel over [0, chunks()), SAH splits: a chunk's side bits and its
     // share of the child bounds.
@@ -229,6 +245,7 @@ private:
     std::vector<PartitionResult> chunk_;  // each chunk's share of the child bounds
     std::vector<uint64_t> sides_;  // bit i: record t_.begin + i goes left
     std::vector<SwapPiece> pieces_;
+    HalfLeftovers halves_[2];
 };
 
 // Runs a big node with a scheduler's means: for_each(k, fn) calls fn(i) for
@@ -240,7 +257,7 @@ private:
 // in an OpenMP team must be shared). With a trace log (given by one caller
 // only), each phase becomes a span on that caller's track: the parallel
 // ones (bin, mark and swap, or count for a middle split) last until the
-// whole team is done; a small team's one-thread partition is the span
+// whole team is done; a small team's partition by halves is the span
 // `partition`.
 template <class ForEach, class Serial>
 bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip, ForEach&& for_each,
@@ -254,8 +271,11 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
     phase(TraceSpan::Bin, [&] { for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); }); });
     phase(TraceSpan::Evaluate, [&] { serial([&] { pn.decide(skip); }); });
     if (!pn.splits()) return false;
-    if (pn.moves() && pn.partitions_alone()) {
-        phase(TraceSpan::Partition, [&] { serial([&] { pn.partition_alone(); }); });
+    if (pn.moves() && pn.partitions_by_halves()) {
+        phase(TraceSpan::Partition, [&] {
+            for_each(2, [&](uint32_t i) { pn.partition_half(i); });
+            serial([&] { pn.pair_leftovers(); });
+        });
     } else if (pn.moves()) {
         phase(TraceSpan::Mark, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.mark_chunk(i); }); });
         phase(TraceSpan::Swap, [&] {

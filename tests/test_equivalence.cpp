@@ -288,7 +288,7 @@ TEST(EquivalenceSlow, SharedScenes) {
 // Nodes of 2^19 records and more (four times the bins), and team-parallel
 // nodes of more than 32 chunks of ParallelNode::kChunk records (the sphere's
 // root: longer chunks, each bin set accumulating several of them), at two
-// threads (partitioned on one thread) and at four (marked and swapped by
+// threads (partitioned by halves) and at four (marked and swapped by
 // chunks, see ParallelNode::kTeamPartitionMin).
 TEST(EquivalenceSlow, MillionTriangleScenes) {
     for (const char* spec : {"gen:sphere:1200000", "gen:stadium:1000000"}) {

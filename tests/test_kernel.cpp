@@ -974,6 +974,80 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
     }
 }
 
+namespace {
+
+// The two-ended partition as a team of two runs it: both halves (in the
+// order given; they touch disjoint records), then their leftovers paired.
+PartitionResult halves_partition(std::vector<PrimRef>& refs, uint32_t begin, uint32_t end, const BinMapper& m,
+                                 const Split& s, bool back_first, uint32_t& leftovers) {
+    canopy::HalfLeftovers front, back;
+    PartitionResult r0, r1;
+    if (back_first) r1 = canopy::partition_half<1>(refs.data(), begin, end, m, s, back);
+    r0 = canopy::partition_half<0>(refs.data(), begin, end, m, s, front);
+    if (!back_first) r1 = canopy::partition_half<1>(refs.data(), begin, end, m, s, back);
+    EXPECT_EQ(front.count, back.count);
+    leftovers = front.count;
+    canopy::swap_leftovers(refs.data(), front, back);
+    r0.merge(r1);
+    r0.mid = begin + s.left_count;
+    return r0;
+}
+
+}  // namespace
+
+TEST(KernelPartition, HalvesMatchPartitionBitForBit) {
+    // Shuffled records (few leftovers), records sorted along the split axis
+    // either way (every misplaced record of one half's parts is a leftover:
+    // ascending has none misplaced, descending all), and sizes from a
+    // handful of records to several blocks.
+    const uint32_t big = 2 * kBlock + 123;
+    uint32_t cases_with_leftovers = 0, cases_without = 0;
+    for (const uint32_t n : {7u, 70u, 400u, big}) {
+        for (const int order : {0, 1, 2}) {
+            std::vector<PrimRef> input = random_refs(n, 41 + n);
+            if (order) {
+                const bool up = order == 1;
+                std::sort(input.begin(), input.end(), [up](const PrimRef& a, const PrimRef& b) {
+                    const float ca = a.lo.x + a.hi.x, cb = b.lo.x + b.hi.x;
+                    return up ? ca < cb : ca > cb;
+                });
+            }
+            for (const auto& [begin, end] : {std::pair{0u, n}, std::pair{n / 7, n - n / 5}}) {
+                if (end - begin < 2) continue;
+                const NodeTask t = task_of(input, begin, end);
+                const BinMapper m = BinMapper::make(t.cbounds, 16);
+                for (int axis = 0; axis < 3; ++axis) {
+                    if (!m.valid[axis]) continue;
+                    for (uint32_t idx : {1u, 5u, 8u, 15u}) {
+                        const Split s = make_split(input, begin, end, m, axis, idx);
+                        if (s.left_count == 0 || s.left_count == end - begin) continue;
+                        std::vector<PrimRef> ref = input;
+                        const PartitionResult p = canopy::partition(ref.data(), begin, end, m, s);
+                        for (const bool back_first : {false, true}) {
+                            std::vector<PrimRef> out = input;
+                            uint32_t leftovers = 0;
+                            const PartitionResult h = halves_partition(out, begin, end, m, s, back_first, leftovers);
+                            (leftovers ? cases_with_leftovers : cases_without)++;
+                            ASSERT_TRUE(same_records(out, ref))
+                                << "n " << n << " order " << order << " axis " << axis << " index " << idx;
+                            EXPECT_EQ(h.mid, p.mid);
+                            EXPECT_EQ(h.left_bounds(), p.left_bounds());
+                            EXPECT_EQ(h.left_cbounds(), p.left_cbounds());
+                            EXPECT_EQ(h.left_max_area(), p.left_max_area());
+                            EXPECT_EQ(h.right_bounds(), p.right_bounds());
+                            EXPECT_EQ(h.right_cbounds(), p.right_cbounds());
+                            EXPECT_EQ(h.right_max_area(), p.right_max_area());
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Both the pairing inside the halves and across them were exercised.
+    EXPECT_GT(cases_with_leftovers, 10u);
+    EXPECT_GT(cases_without, 10u);
+}
+
 TEST(KernelPartition, PlanSwapsCutsByRank) {
     // 130 records, mid = 70: sides by hand. Going right in [0, 70): 2, 3, 65,
     // 69; going left in [70, 130): 70, 100, 127, 129.
@@ -1470,6 +1544,16 @@ TEST(KernelSizeSplit, PartitionByAreaSwapsTheMisplacedPairs) {
         EXPECT_EQ(merged.right_cbounds(), p.right_cbounds());
         EXPECT_EQ(merged.left_max_area(), p.left_max_area());
         EXPECT_EQ(merged.right_max_area(), p.right_max_area());
+
+        // By halves, as a team of two does it: the same again.
+        std::vector<PrimRef> halves = input;
+        uint32_t leftovers = 0;
+        const PartitionResult h = halves_partition(halves, begin, end, m, s, false, leftovers);
+        EXPECT_TRUE(same_records(halves, refs));
+        EXPECT_EQ(h.left_bounds(), p.left_bounds());
+        EXPECT_EQ(h.right_cbounds(), p.right_cbounds());
+        EXPECT_EQ(h.left_max_area(), p.left_max_area());
+        EXPECT_EQ(h.right_max_area(), p.right_max_area());
     }
 }
 

@@ -68,7 +68,7 @@ TEST(Trace, SpansNameTheirCanonicalNodes) {
         for (const TraceSpan::Kind k : {TraceSpan::Start, TraceSpan::Bin, TraceSpan::Evaluate, TraceSpan::Finish})
             EXPECT_EQ(kinds[k], kinds[TraceSpan::Parallel]) << TraceSpan::kKindNames[k];
         // A SAH split marks sides and swaps, or with a team of fewer than
-        // kTeamPartitionMin threads (two here) partitions on one thread; a
+        // kTeamPartitionMin threads (two here) partitions by halves; a
         // middle split only counts its halves' bounds.
         EXPECT_EQ(kinds[TraceSpan::Mark], kinds[TraceSpan::Swap]);
         EXPECT_EQ(kinds[TraceSpan::Mark] + kinds[TraceSpan::Partition] + kinds[TraceSpan::Count],
