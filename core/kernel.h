@@ -19,6 +19,7 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <cassert>
 #include <cstdint>
 #include <cstring>
 #include <limits>
@@ -1440,19 +1441,17 @@ PartitionResult partition_half(PrimRef* refs, uint32_t b, uint32_t ql, uint32_t 
     }
     // At most one part has misplaced records left: its pending block and
     // the blocks not read yet (the other part's are all read).
-    std::vector<std::pair<uint32_t, uint64_t>>& out = left_over.blocks;
-    if (mi) left_over.add(bi, mi);
+    left_over.add(bi, mi);
     while (next_left()) left_over.add(bi, mi);
-    mi = 0;
-    if (mj) left_over.add(bj, mj);
+    left_over.add(bj, mj);
     while (next_right()) left_over.add(bj, mj);
-    mj = 0;
-    if (Side == 1) std::reverse(out.begin(), out.end());  // found from the highest rank down
+    if (Side == 1) std::reverse(left_over.blocks.begin(), left_over.blocks.end());  // found from the highest rank down
     return result_of(acc, 0);
 }
 
 // Pairs the two halves' leftovers rank for rank (equally many).
 inline void swap_leftovers(PrimRef* refs, const HalfLeftovers& front, const HalfLeftovers& back) {
+    assert(front.count == back.count);
     size_t fb = 0, bb = 0;
     uint64_t fm = 0, bm = 0;
     for (uint32_t k = 0; k < front.count; ++k) {
