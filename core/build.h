@@ -23,9 +23,12 @@ concept Scheduler = requires(BuildState& st) {
 
 namespace detail {
 
+// 0 asks for every hardware thread. The count is read once per process:
+// std::thread::hardware_concurrency() opens, reads and closes a sysfs file
+// on every call (glibc), which a build with default options did each time.
 inline uint32_t resolve_threads(uint32_t asked) {
     if (asked) return asked;
-    const unsigned hw = std::thread::hardware_concurrency();
+    static const unsigned hw = std::thread::hardware_concurrency();
     return hw ? hw : 1;
 }
 
