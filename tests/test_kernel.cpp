@@ -884,6 +884,16 @@ namespace {
 // A block size of the order the team-parallel node uses.
 constexpr uint32_t kBlock = 16384;
 
+// Both children's bounds, centroid bounds and largest areas equal.
+void expect_same_children(const PartitionResult& got, const PartitionResult& want) {
+    EXPECT_EQ(got.left_bounds(), want.left_bounds());
+    EXPECT_EQ(got.left_cbounds(), want.left_cbounds());
+    EXPECT_EQ(got.left_max_area(), want.left_max_area());
+    EXPECT_EQ(got.right_bounds(), want.right_bounds());
+    EXPECT_EQ(got.right_cbounds(), want.right_cbounds());
+    EXPECT_EQ(got.right_max_area(), want.right_max_area());
+}
+
 // The partition as a team-parallel node runs it, on `refs`: mark_sides() on
 // consecutive `ranges` (starting at multiples of 64 from the first), in a
 // shuffled order; plan_swaps() with `per_piece`; the pieces swapped in a
@@ -963,12 +973,7 @@ TEST(KernelPartition, BlockedMatchesPartitionBitForBit) {
                 const PartitionResult merged = blocked_partition(out, ranges, m, s, c.per_piece, idx);
                 EXPECT_EQ(merged.mid, p.mid);
                 ASSERT_TRUE(same_records(out, ref)) << "n " << c.n << " axis " << axis << " index " << idx;
-                EXPECT_EQ(merged.left_bounds(), p.left_bounds());
-                EXPECT_EQ(merged.left_cbounds(), p.left_cbounds());
-                EXPECT_EQ(merged.left_max_area(), p.left_max_area());
-                EXPECT_EQ(merged.right_bounds(), p.right_bounds());
-                EXPECT_EQ(merged.right_cbounds(), p.right_cbounds());
-                EXPECT_EQ(merged.right_max_area(), p.right_max_area());
+                expect_same_children(merged, p);
             }
         }
     }
@@ -1031,12 +1036,7 @@ TEST(KernelPartition, HalvesMatchPartitionBitForBit) {
                             ASSERT_TRUE(same_records(out, ref))
                                 << "n " << n << " order " << order << " axis " << axis << " index " << idx;
                             EXPECT_EQ(h.mid, p.mid);
-                            EXPECT_EQ(h.left_bounds(), p.left_bounds());
-                            EXPECT_EQ(h.left_cbounds(), p.left_cbounds());
-                            EXPECT_EQ(h.left_max_area(), p.left_max_area());
-                            EXPECT_EQ(h.right_bounds(), p.right_bounds());
-                            EXPECT_EQ(h.right_cbounds(), p.right_cbounds());
-                            EXPECT_EQ(h.right_max_area(), p.right_max_area());
+                            expect_same_children(h, p);
                         }
                     }
                 }
@@ -1550,10 +1550,7 @@ TEST(KernelSizeSplit, PartitionByAreaSwapsTheMisplacedPairs) {
         uint32_t leftovers = 0;
         const PartitionResult h = halves_partition(halves, begin, end, m, s, false, leftovers);
         EXPECT_TRUE(same_records(halves, refs));
-        EXPECT_EQ(h.left_bounds(), p.left_bounds());
-        EXPECT_EQ(h.right_cbounds(), p.right_cbounds());
-        EXPECT_EQ(h.left_max_area(), p.left_max_area());
-        EXPECT_EQ(h.right_max_area(), p.right_max_area());
+        expect_same_children(h, p);
     }
 }
 
