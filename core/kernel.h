@@ -1396,55 +1396,54 @@ struct HalfLeftovers {
     }
 };
 
+// One part's share in partition_half(): its blocks of up to kSideBlock
+// records, read from lo up (side 0) or from hi down (side 1), each leaving
+// its misplaced records as bits.
+template <int Side>
+struct HalfCursor {
+    uint32_t lo, hi;
+    uint32_t at = Side == 0 ? lo : hi;  // the next block's bound
+    uint32_t first = 0;                 // the current block's first record
+    uint64_t bits = 0;                  // its misplaced records not yet paired
+    // Reads the next block (false when none is left); `right_part`: the
+    // misplaced records are those going left, else those going right.
+    template <class Test>
+    bool next(const PrimRef* refs, const Test& side, ChildBounds4& acc, bool right_part) {
+        if (Side == 0 ? at >= hi : at <= lo) return false;
+        const uint32_t n = std::min(kSideBlock, Side == 0 ? hi - at : at - lo);
+        first = Side == 0 ? at : at - n;
+        const uint64_t left = mark_block(refs + first, n, side, acc);
+        bits = right_part ? left : ~left & block_bits(n);
+        at = Side == 0 ? at + n : at - n;
+        return true;
+    }
+    // The next pair's bit: the lowest going up, the highest going down.
+    uint32_t take() {
+        const uint32_t k = Side == 0 ? uint32_t(std::countr_zero(bits)) : 63u - uint32_t(std::countl_zero(bits));
+        bits &= ~(uint64_t(1) << k);
+        return first + k;
+    }
+};
+
 // Side 0: [b, ql) and [mid, qr); side 1: [ql, mid) and [qr, e).
 template <int Side, class Test>
 PartitionResult partition_half(PrimRef* refs, uint32_t b, uint32_t ql, uint32_t mid, uint32_t qr, uint32_t e,
                                const Test& side, HalfLeftovers& left_over) {
     ChildBounds4 acc;
     left_over.clear();
-    // A cursor in each part's share, with its current block's misplaced
-    // records as bits (mi: going right in the left part, mj: going left in
-    // the right part). The front half steps up, the back half down.
-    const uint32_t li0 = Side == 0 ? b : ql, li1 = Side == 0 ? ql : mid;
-    const uint32_t rj0 = Side == 0 ? mid : qr, rj1 = Side == 0 ? qr : e;
-    uint32_t i = Side == 0 ? li0 : li1, j = Side == 0 ? rj0 : rj1;  // next block's bound
-    uint32_t bi = 0, bj = 0;                                        // current blocks' first records
-    uint64_t mi = 0, mj = 0;
-    const auto next_left = [&]() -> bool {
-        if (Side == 0 ? i >= li1 : i <= li0) return false;
-        const uint32_t n = Side == 0 ? std::min(kSideBlock, li1 - i) : std::min(kSideBlock, i - li0);
-        bi = Side == 0 ? i : i - n;
-        mi = ~mark_block(refs + bi, n, side, acc) & block_bits(n);
-        i = Side == 0 ? i + n : i - n;
-        return true;
-    };
-    const auto next_right = [&]() -> bool {
-        if (Side == 0 ? j >= rj1 : j <= rj0) return false;
-        const uint32_t n = Side == 0 ? std::min(kSideBlock, rj1 - j) : std::min(kSideBlock, j - rj0);
-        bj = Side == 0 ? j : j - n;
-        mj = mark_block(refs + bj, n, side, acc);
-        j = Side == 0 ? j + n : j - n;
-        return true;
-    };
-    const auto take = [](uint64_t& m) {  // the pair's bit: lowest up, highest down
-        const uint32_t k = Side == 0 ? uint32_t(std::countr_zero(m)) : 63u - uint32_t(std::countl_zero(m));
-        m &= ~(uint64_t(1) << k);
-        return k;
-    };
+    HalfCursor<Side> li{Side == 0 ? b : ql, Side == 0 ? ql : mid};   // going right in the left part
+    HalfCursor<Side> rj{Side == 0 ? mid : qr, Side == 0 ? qr : e};   // going left in the right part
     for (;;) {
-        if (!mi && !next_left()) break;
-        if (!mj && !next_right()) break;
-        for (; mi && mj;) {
-            const uint32_t x = take(mi), y = take(mj);
-            swap_refs(refs[bi + x], refs[bj + y]);
-        }
+        if (!li.bits && !li.next(refs, side, acc, false)) break;
+        if (!rj.bits && !rj.next(refs, side, acc, true)) break;
+        while (li.bits && rj.bits) swap_refs(refs[li.take()], refs[rj.take()]);
     }
     // At most one part has misplaced records left: its pending block and
     // the blocks not read yet (the other part's are all read).
-    left_over.add(bi, mi);
-    while (next_left()) left_over.add(bi, mi);
-    left_over.add(bj, mj);
-    while (next_right()) left_over.add(bj, mj);
+    left_over.add(li.first, li.bits);
+    while (li.next(refs, side, acc, false)) left_over.add(li.first, li.bits);
+    left_over.add(rj.first, rj.bits);
+    while (rj.next(refs, side, acc, true)) left_over.add(rj.first, rj.bits);
     if (Side == 1) std::reverse(left_over.blocks.begin(), left_over.blocks.end());  // found from the highest rank down
     return result_of(acc, 0);
 }
