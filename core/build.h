@@ -52,7 +52,6 @@ void build_into(BuildState& st, size_t count, BuildStats* stats) {
                           std::to_string(count) + " primitives in leaves of at most " +
                           std::to_string(st.options.max_leaf) + " (needs " +
                           std::to_string(ceil_log2(static_cast<uint32_t>(leaves_needed))) + ")");
-    st.refs.allocate(count);
     reserve_on_huge_pages(st.bvh.permutation, count);
     st.bvh.permutation.resize(count);
     S::run(st);

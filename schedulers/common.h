@@ -14,6 +14,7 @@
 #include "sequential.h"
 
 #include <algorithm>
+#include <cassert>
 #include <memory>
 #include <vector>
 
@@ -85,6 +86,7 @@ inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& 
 template <class ForEach>
 void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
     const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
+    assert(st.records && "allocate_records_in_tree() first");
     const uint32_t t = std::max(1u, threads);
     const uint32_t rounds = static_cast<uint32_t>((uint64_t(st.n) + uint64_t(t) * kPrepareBlock - 1) /
                                                   (uint64_t(t) * kPrepareBlock));
@@ -105,17 +107,20 @@ void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
 template <class ForEach>
 void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     const TraceScope trace(st.trace, st.n, 0, TraceSpan::Place);
-    // The records are no longer needed (the leaves wrote the permutation):
-    // a one-off build returns their memory before the final node array is
-    // allocated, so that it and the workers' blocks are not all held at once
-    // (the 1M sphere's peak: 136 bytes per triangle before, see README).
+    // The records are no longer needed (the leaves wrote the permutation).
+    // They lie in the final node array's storage (allocate_records_in_tree()),
+    // which the placement then writes over when the tree fits there. When it
+    // does not, that storage goes before the final array is allocated, and
+    // so does the unused end of each worker's last chunk, so that they and
+    // the final array are not all held at once (a one-off build's peak is
+    // then the tree twice and the permutation, whichever worker built what).
     st.release_records();
-    // Nor the unused end of each worker's last chunk: trimmed before the
-    // final array exists, it is not held beside it (a one-off build's peak
-    // is then the tree twice and the permutation, whichever worker built
-    // what).
-    if (!st.keep_memory)
+    size_t total = 0;
+    for (auto& wk : workers.w) total += wk.out.node_count();
+    if (!st.keep_memory && st.bvh.nodes.capacity() < total) {
+        std::vector<Node>().swap(st.bvh.nodes);
         for_each(static_cast<uint32_t>(workers.size()), [&](uint32_t i) { workers[i].out.trim(); });
+    }
     std::vector<const PlacementArena*> arenas;
     arenas.reserve(workers.size());
     for (auto& wk : workers.w) {

@@ -23,6 +23,7 @@ struct OmpLevels {
     static void run(BuildState& st) {
         const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
+        st.allocate_records_in_tree();  // before any context() is taken
         const KernelContext ctx = st.context();
         struct Level {
             std::vector<NodeTask> frontier, big, small, next, kids;

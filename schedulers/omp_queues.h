@@ -27,6 +27,7 @@ struct OmpQueues {
     static void run(BuildState& st) {
         const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
+        st.allocate_records_in_tree();  // before any context() is taken
         const KernelContext ctx = st.context();
         sched::TopPhase top;
         std::vector<Queue> queues;

@@ -19,6 +19,7 @@ struct Sequential {
 
     static void run(BuildState& st) {
         st.stats.threads_used = 1;
+        st.allocate_records();
         {
             const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
             st.finish_prepare(st.prepare_range(0, st.n));

@@ -25,6 +25,7 @@ struct Tbb {
         const uint32_t threads = std::min<uint32_t>(
             sched::useful_threads(st), static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
         if (threads <= 1) return Sequential::run(st);
+        st.allocate_records_in_tree();  // before any context() is taken
         st.stats.threads_used = threads;
         tbb::task_arena arena(static_cast<int>(threads));
         arena.execute([&] {

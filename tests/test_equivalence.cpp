@@ -125,6 +125,37 @@ TEST(Equivalence, FullMatrixOnGeneratedScenes) {
     }
 }
 
+// A parallel build keeps its records in the final node array's storage
+// (BuildState::allocate_records_in_tree()) and places the tree over them when
+// it has at most one node per primitive (and one more); a tree of more nodes
+// gets an array of its own. Both ways give the sequential tree: the sphere's
+// tree fits (its array is the records' storage, n + 1 nodes), random
+// triangles' trees have 1.8 nodes per primitive (an exact array).
+TEST(Equivalence, FinalArrayInTheRecordsStorageOrItsOwn) {
+    struct Case {
+        const char* name;
+        TriangleMesh mesh;
+        bool fits;
+    };
+    const Case cases[] = {{"sphere", generate("sphere", 20000, 1), true},
+                          {"random", generate("random", 20000, 7), false}};
+    for (const Case& c : cases) {
+        const TriangleView view = c.mesh.view();
+        const size_t n = view.triangle_count();
+        const Bvh ref = build<Sequential>(view, small_tuning(32, 1));
+        ASSERT_EQ(ref.nodes.size() <= n + 1, c.fits) << c.name << ": " << ref.nodes.size() << " nodes";
+        for (const SchedulerEntry& s : tested_schedulers()) {
+            if (std::string_view(s.name) == "sequential") continue;
+            BuildStats stats;
+            const Bvh got = s.build_triangles(view, small_tuning(32, 2), &stats);
+            const std::string what = std::string(c.name) + " " + s.name;
+            ASSERT_EQ(stats.threads_used, 2u) << what;
+            expect_same(ref, got, what);
+            EXPECT_EQ(got.nodes.capacity(), c.fits ? n + 1 : got.nodes.size()) << what;
+        }
+    }
+}
+
 // The default tuning on a scene big enough for team-parallel nodes near the
 // root (stadium: one dense object) and for task cutoffs.
 TEST(Equivalence, DefaultTuningOnLargerScenes) {
