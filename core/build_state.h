@@ -102,7 +102,7 @@ struct BuildState {
         records = nullptr;
     }
 
-    // Computes refs[first, last) from primitives first..last-1.
+    // Computes records[first, last) from primitives first..last-1.
     PrepareSummary prepare_range(size_t first, size_t last) {
         return mesh ? prepare_triangles(*mesh, first, last, records)
                     : prepare_boxes(boxes, first, last, records);
