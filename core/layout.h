@@ -339,11 +339,6 @@ void place_nodes(std::span<const PlacementArena* const> arenas, std::vector<Node
     }
     rank.finish();
     nodes.clear();
-    // A tree of more nodes than `nodes` can hold (a warm Builder's spare
-    // tree; a one-off build frees the records' storage before, see
-    // finish_parallel()) gets new storage; the old goes first, so that the
-    // two are not held at once.
-    if (nodes.capacity() < total) std::vector<Node>().swap(nodes);
     reserve_on_huge_pages(nodes, total);
     nodes.resize(total);
     for_each(arenas.size(), [&](size_t i) { place_arena(*arenas[i], rank, nodes.data()); });
