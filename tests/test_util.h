@@ -1,15 +1,18 @@
-// What several test programs share: checking an InputError's message, the
-// scheduler tuning for small scenes, and a fixture with a fresh temporary
-// directory to write input files into.
+// What several test programs share: small generated meshes, checking an
+// InputError's message, the scheduler tuning for small scenes, and a fixture
+// with a fresh temporary directory to write input files into.
 #pragma once
 
 #include "core/error.h"
+#include "core/geometry.h"
+#include "core/mesh.h"
 #include "core/options.h"
 
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <chrono>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -19,6 +22,52 @@
 #include <vector>
 
 namespace canopy::test_util {
+
+// A float in [lo, hi) from 24 random bits (the same value on every platform).
+inline float uniform(std::mt19937& rng, float lo, float hi) {
+    const float u = float(rng() >> 8) * 0x1p-24f;  // [0, 1) in steps of 2^-24
+    return lo + (hi - lo) * u;
+}
+
+// n random triangles in [0, 100)^3 of size up to `size` (own vertices).
+inline TriangleMesh random_mesh(uint32_t n, uint32_t seed, float size = 2.0f) {
+    std::mt19937 rng(seed);
+    TriangleMesh m;
+    m.vertices.reserve(3 * size_t(n));
+    m.indices.reserve(3 * size_t(n));
+    for (uint32_t t = 0; t < n; ++t) {
+        const Vec3 c(uniform(rng, 0, 100), uniform(rng, 0, 100), uniform(rng, 0, 100));
+        for (int k = 0; k < 3; ++k) {
+            m.indices.push_back(uint32_t(m.vertices.size()));
+            m.vertices.push_back(c + size * Vec3(uniform(rng, -0.5f, 0.5f), uniform(rng, -0.5f, 0.5f),
+                                                 uniform(rng, -0.5f, 0.5f)));
+        }
+    }
+    return m;
+}
+
+// A k x k grid of unit quads (two triangles each) in the plane z = 0.
+inline TriangleMesh grid_mesh(uint32_t k) {
+    TriangleMesh m;
+    for (uint32_t y = 0; y <= k; ++y)
+        for (uint32_t x = 0; x <= k; ++x) m.vertices.push_back(Vec3(float(x), float(y), 0.0f));
+    auto v = [&](uint32_t x, uint32_t y) { return y * (k + 1) + x; };
+    for (uint32_t y = 0; y < k; ++y)
+        for (uint32_t x = 0; x < k; ++x) {
+            m.indices.insert(m.indices.end(), {v(x, y), v(x + 1, y), v(x + 1, y + 1)});
+            m.indices.insert(m.indices.end(), {v(x, y), v(x + 1, y + 1), v(x, y + 1)});
+        }
+    return m;
+}
+
+// n copies of one triangle (three shared vertices).
+inline TriangleMesh coincident_mesh(uint32_t n) {
+    TriangleMesh m;
+    m.vertices = {Vec3(1, 2, 3), Vec3(4, 2, 3), Vec3(1, 6, 3)};
+    m.indices.reserve(3 * size_t(n));
+    for (uint32_t t = 0; t < n; ++t) m.indices.insert(m.indices.end(), {0u, 1u, 2u});
+    return m;
+}
 
 // Runs `fn`, expects an InputError whose message contains every needle.
 inline void expect_input_error(const std::function<void()>& fn, const std::vector<std::string>& needles) {

@@ -6,6 +6,7 @@
 #include "core/sah.h"
 #include "core/validate.h"
 #include "schedulers/sequential.h"
+#include "test_util.h"
 
 #include <gtest/gtest.h>
 
@@ -27,48 +28,12 @@ using canopy::Vec3;
 
 namespace {
 
+using canopy::test_util::coincident_mesh;
+using canopy::test_util::grid_mesh;
+using canopy::test_util::random_mesh;
+using canopy::test_util::uniform;
+
 constexpr float kInf = std::numeric_limits<float>::infinity();
-
-float uniform(std::mt19937& rng, float lo, float hi) {
-    const float u = float(rng() >> 8) * 0x1p-24f;  // [0, 1) in steps of 2^-24
-    return lo + (hi - lo) * u;
-}
-
-// n small random triangles scattered in [0, 100)^3.
-TriangleMesh random_mesh(uint32_t n, uint32_t seed) {
-    std::mt19937 rng(seed);
-    TriangleMesh m;
-    for (uint32_t t = 0; t < n; ++t) {
-        const Vec3 c(uniform(rng, 0, 100), uniform(rng, 0, 100), uniform(rng, 0, 100));
-        for (int k = 0; k < 3; ++k) {
-            m.indices.push_back(uint32_t(m.vertices.size()));
-            m.vertices.push_back(c + Vec3(uniform(rng, -1, 1), uniform(rng, -1, 1), uniform(rng, -1, 1)));
-        }
-    }
-    return m;
-}
-
-// A k x k grid of unit quads (two triangles each) in the plane z = 0.
-TriangleMesh grid_mesh(uint32_t k) {
-    TriangleMesh m;
-    for (uint32_t y = 0; y <= k; ++y)
-        for (uint32_t x = 0; x <= k; ++x) m.vertices.push_back(Vec3(float(x), float(y), 0.0f));
-    auto v = [&](uint32_t x, uint32_t y) { return y * (k + 1) + x; };
-    for (uint32_t y = 0; y < k; ++y)
-        for (uint32_t x = 0; x < k; ++x) {
-            m.indices.insert(m.indices.end(), {v(x, y), v(x + 1, y), v(x + 1, y + 1)});
-            m.indices.insert(m.indices.end(), {v(x, y), v(x + 1, y + 1), v(x, y + 1)});
-        }
-    return m;
-}
-
-// n copies of one triangle (shared vertices).
-TriangleMesh coincident_mesh(uint32_t n) {
-    TriangleMesh m;
-    m.vertices = {Vec3(1, 2, 3), Vec3(4, 2, 3), Vec3(1, 6, 3)};
-    for (uint32_t t = 0; t < n; ++t) m.indices.insert(m.indices.end(), {0u, 1u, 2u});
-    return m;
-}
 
 // `clusters` groups of `per` coincident triangles, far apart along x.
 TriangleMesh clustered_mesh(uint32_t clusters, uint32_t per) {
