@@ -2,6 +2,7 @@
 #pragma once
 
 #include "bvh.h"
+#include "depth_first.h"
 #include "kernel.h"
 #include "memory.h"
 #include "mesh.h"
@@ -67,6 +68,14 @@ struct BuildState {
     void allocate_records() {
         refs.allocate(n);
         records = refs.get();
+    }
+    // The sequential layout's records at the end of the node array's storage
+    // (`capacity` nodes), which the nodes fill from the front as the build
+    // consumes the records (NodesBeforeRecords in core/depth_first.h).
+    void allocate_records_after_nodes(size_t capacity) {
+        // bvh.nodes is empty (build_into()).
+        reserve_on_huge_pages(bvh.nodes, capacity);
+        records = NodesBeforeRecords::records_at_end(bvh.nodes.data(), bvh.nodes.capacity(), n);
     }
     // The parallel drivers' records, in the storage of the final node array
     // (bvh.nodes' capacity, one 32-byte node per record): their nodes go

@@ -206,7 +206,7 @@ public:
         first_ = static_cast<uint32_t>(chunk_->size() - 1);
         return s;
     }
-    std::array<Slot, 2> pair() {
+    std::array<Slot, 2> pair(uint32_t /*live*/) {
         const Slot a = next();
         return {a, next()};
     }

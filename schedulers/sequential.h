@@ -4,7 +4,9 @@
 // node splits, its child pair is appended to the node array and the left
 // child is processed before the right one, which is the canonical layout by
 // construction (no placement pass: the parallel schedulers' placement is
-// checked against this).
+// checked against this). The records share the node array's storage: the
+// nodes fill it from the front while the build consumes the records, which
+// sit at its end.
 #pragma once
 
 #include "../core/build.h"
@@ -19,26 +21,34 @@ struct Sequential {
 
     static void run(BuildState& st) {
         st.stats.threads_used = 1;
-        st.allocate_records();
+        // One-off builds: the records at the end of the node array's storage,
+        // the nodes filling it from the front (NodesBeforeRecords). A warm
+        // Builder keeps a records array of its own (its tree is swapped out).
+        const bool own_records = st.keep_memory;
+        if (own_records)
+            st.allocate_records();
+        else
+            st.allocate_records_after_nodes(NodesBeforeRecords::initial_capacity(st.n));
         {
             const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
             st.finish_prepare(st.prepare_range(0, st.n));
         }
-        build_subtree(st);
-    }
-
-private:
-    static void build_subtree(BuildState& st) {
-        std::vector<Node>& nodes = st.bvh.nodes;
-        nodes.clear();
-        // Trees of meshes have 0.97 to 1.09 nodes per primitive with leaves
-        // of up to 4 (the shared scenes, the generated sphere and stadium);
-        // a tree that needs more than 1.1 grows the array once (1M random
-        // small triangles: 1.86). 1.1 keeps a build's peak below 72 bytes
-        // per primitive: records 32, permutation 4, nodes 35.2.
-        reserve_on_huge_pages(nodes, size_t(st.n) + st.n / 10 + 64);
         auto bins = std::make_unique<BinSet>();
-        build_depth_first(st.context(), st.root, nodes, *bins, st.stats.skipped, 0);
+        KernelContext ctx = st.context();
+        if (own_records) {
+            std::vector<Node>& nodes = st.bvh.nodes;
+            nodes.clear();
+            // Trees of meshes have 0.97 to 1.09 nodes per primitive with
+            // leaves of up to 4 (the shared scenes, the generated sphere and
+            // stadium); a tree that needs more than 1.1 grows the array once
+            // (1M random small triangles: 1.86).
+            reserve_on_huge_pages(nodes, size_t(st.n) + st.n / 10 + 64);
+            build_depth_first(ctx, st.root, nodes, *bins, st.stats.skipped, 0);
+            return;
+        }
+        NodesBeforeRecords out(st.bvh.nodes, ctx, st.n);
+        build_depth_first(ctx, st.root, out, *bins, st.stats.skipped, 0);
+        st.records = nullptr;  // overwritten by nodes, or moved and freed by a growth
     }
 };
 

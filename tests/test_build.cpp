@@ -532,6 +532,89 @@ TEST(BuildShape, TreeOutgrowsTheNodeReservation) {
     EXPECT_TRUE(canopy::validate(seq, m.view(), opt).ok());
 }
 
+// A one-off sequential build keeps its records at the end of the node
+// array's storage and writes the nodes from the front (NodesBeforeRecords);
+// a warm Builder keeps a records array of its own. Both give the same tree:
+// the sphere's fits in the first reservation (1.1 nodes per primitive), the
+// random triangles' (1.86) and leaves of one primitive (2n - 1) make the
+// storage grow during the build.
+TEST(BuildMemory, RecordsAtTheEndOfTheNodeArray) {
+    struct Case {
+        const char* name;
+        TriangleMesh mesh;
+        uint32_t max_leaf;
+        bool grows;
+    };
+    const Case cases[] = {{"sphere", canopy::generate("sphere", 20000, 1), 4, false},
+                          {"random", canopy::generate("random", 20000, 7), 4, true},
+                          {"random, leaves of 1", canopy::generate("random", 5000, 3), 1, true}};
+    for (const Case& c : cases) {
+        BuildOptions opt;
+        opt.max_leaf = c.max_leaf;
+        const uint32_t n = uint32_t(c.mesh.triangle_count());
+        const Bvh got = canopy::build<Sequential>(c.mesh.view(), opt);
+        canopy::Builder<Sequential> warm;
+        Bvh ref;
+        warm.build(c.mesh.view(), ref, opt);
+        EXPECT_TRUE(got == ref) << c.name;
+        EXPECT_TRUE(canopy::validate(got, c.mesh.view(), opt).ok()) << c.name;
+        const size_t first = canopy::NodesBeforeRecords::initial_capacity(n);
+        if (c.grows)
+            EXPECT_GT(got.nodes.capacity(), first) << c.name << ": " << got.nodes.size() << " nodes";
+        else
+            EXPECT_EQ(got.nodes.capacity(), first) << c.name << ": " << got.nodes.size() << " nodes";
+    }
+}
+
+// NodesBeforeRecords on its own: pairs taken faster and faster against the
+// records consumed (one pair for each of the first 100 records, up to ten
+// for the last: each growth's estimate falls short) make it grow several
+// times; every node written and every live record survive each move, and
+// ctx.refs follows the records.
+TEST(BuildMemory, NodesBeforeRecordsGrowsKeepingNodesAndLiveRecords) {
+    const uint32_t n = 1000;
+    std::vector<Node> v;
+    canopy::reserve_on_huge_pages(v, canopy::NodesBeforeRecords::initial_capacity(n));
+    canopy::KernelContext ctx{canopy::NodesBeforeRecords::records_at_end(v.data(), v.capacity(), n), nullptr,
+                              nullptr, nullptr};
+    ASSERT_EQ(reinterpret_cast<std::uintptr_t>(ctx.refs) % 32, 0u);
+    ASSERT_LE(reinterpret_cast<const char*>(ctx.refs + n), reinterpret_cast<const char*>(v.data() + v.capacity()));
+    for (uint32_t r = 0; r < n; ++r) {
+        ctx.refs[r] = canopy::PrimRef{};
+        ctx.refs[r].id = r;
+        ctx.refs[r].lo = Vec3(float(r), 0.0f, 0.0f);
+    }
+    canopy::NodesBeforeRecords out(v, ctx, n);
+    const auto tag = [&](uint32_t slot) {
+        Node& node = out.at(slot);
+        node.index = slot;
+        node.count = 7;
+    };
+    tag(out.root());
+    int moves = 0;
+    size_t pairs = 0;
+    for (uint32_t live = 0; live < n; ++live) {
+        const canopy::PrimRef* before = ctx.refs;
+        for (uint32_t k = 0; k < 1 + live / 100; ++k, ++pairs) {
+            const auto pair = out.pair(live);
+            ASSERT_EQ(pair[1], pair[0] + 1);
+            tag(pair[0]);
+            tag(pair[1]);
+        }
+        moves += ctx.refs != before;
+        for (uint32_t r = live; r < n; ++r) {
+            ASSERT_EQ(ctx.refs[r].id, r) << "record " << r << " after record " << live;
+            ASSERT_EQ(ctx.refs[r].lo.x, float(r));
+        }
+    }
+    EXPECT_GE(moves, 3);
+    ASSERT_EQ(v.size(), 1 + 2 * pairs);
+    for (uint32_t s = 0; s < v.size(); ++s) {
+        ASSERT_EQ(v[s].index, s);
+        ASSERT_EQ(v[s].count, 7u);
+    }
+}
+
 TEST(BuildShape, SingleAndTwoPrimitives) {
     const TriangleMesh one = random_mesh(1, 13);
     const Bvh b1 = build(one);
