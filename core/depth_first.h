@@ -58,8 +58,10 @@ struct GrowingNodes {
 // record. Where a tree has more nodes than that (small leaves), grow() moves
 // the nodes and the live records into bigger storage. One array of about 1.1
 // nodes per primitive instead of a records array (32 bytes a primitive) and a
-// node array (35.2); and the node writes land on cache lines the records had
-// just brought in, instead of fresh memory.
+// node array (35.2); and past the storage's first tenth the nodes are
+// written over memory the records had brought in (prepare touched it), not
+// into fresh memory, which on this project's virtual machine was at times
+// very slow to fault in (README, the memory paragraph).
 class NodesBeforeRecords {
 public:
     using Slot = uint32_t;
