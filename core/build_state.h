@@ -92,12 +92,9 @@ struct BuildState {
     // Builder keeps the records' own array, since its tree is swapped out.
     void allocate_records_in_tree() {
         if (keep_memory) return allocate_records();
-        // bvh.nodes is empty (build_into()). One node more than records: the
-        // vector's storage is 16-byte aligned, the records want 32.
-        reserve_on_huge_pages(bvh.nodes, size_t(n) + 1);
-        static_assert(sizeof(Node) == sizeof(PrimRef) && alignof(PrimRef) == 32);
-        const auto at = reinterpret_cast<std::uintptr_t>(bvh.nodes.data());
-        records = reinterpret_cast<PrimRef*>((at + 31) & ~std::uintptr_t(31));
+        // One node more than records: the vector's storage is 16-byte
+        // aligned, the records want 32.
+        allocate_records_after_nodes(size_t(n) + 1);
     }
 
     // Frees the records once the tree no longer needs them, unless the state

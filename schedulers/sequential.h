@@ -42,7 +42,7 @@ struct Sequential {
             // leaves of up to 4 (the shared scenes, the generated sphere and
             // stadium); a tree that needs more than 1.1 grows the array once
             // (1M random small triangles: 1.86).
-            reserve_on_huge_pages(nodes, size_t(st.n) + st.n / 10 + 64);
+            reserve_on_huge_pages(nodes, NodesBeforeRecords::initial_capacity(st.n));
             build_depth_first(ctx, st.root, nodes, *bins, st.stats.skipped, 0);
             return;
         }
