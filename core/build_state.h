@@ -56,6 +56,7 @@ struct BuildState {
     PrimRef* records = nullptr; // the records, partitioned in place
     Workers workers;            // the parallel drivers' per-thread scratch
     bool keep_memory = false;   // a warm Builder's state: release nothing early
+    bool records_in_tree = false;  // the parallel drivers' records in bvh.nodes' storage
     Bvh bvh;
     NodeTask root;
     BuildStats stats;
@@ -78,32 +79,21 @@ struct BuildState {
         records = NodesBeforeRecords::records_at_end(bvh.nodes.data(), bvh.nodes.capacity(), n);
     }
     // The parallel drivers' records, in the storage of the final node array
-    // (bvh.nodes' capacity, one 32-byte node per record): their nodes go
-    // to per-worker chunks during the build and are copied into the final
-    // array only once the records are no longer needed, and when the tree
-    // has no more nodes than primitives (the meshes' trees: 0.97 to 1.09 per
-    // triangle) that copy then writes memory the records had already
-    // brought in, instead of fresh memory (finish_parallel() allocates anew
-    // when the tree needs more). Fresh memory is slow to hand out on virtual
-    // machines, and slower still at times: the placement of the 4M sphere's
-    // tree at 2 threads (tbb, timed inside the build, 18 builds of each
-    // version alternated, Intel host, 2026-12-04) took 9.98 to 13.7 ms this
-    // way, against 19.6 to 387 ms (median 101) into fresh memory. A warm
-    // Builder keeps the records' own array, since its tree is swapped out.
+    // (bvh.nodes' capacity: NodesBeforeRecords::initial_capacity(), 1.1
+    // nodes per record and a few, the records at its end): each inline
+    // subtree's nodes are written over its own records once it is built,
+    // and the placement moves them to the front of the same storage
+    // (sched::run_subtree_over_records(), place_over_records() in
+    // core/layout.h), so that a one-off build holds its tree once, in memory
+    // the records had already brought in. (Until 2026-12-05 the subtrees'
+    // nodes went to per-worker chunks and were copied into the final array:
+    // the tree was held twice, and fresh memory, slow to hand out on
+    // virtual machines, was written twice.) A warm Builder keeps the
+    // records' own array, since its tree is swapped out.
     void allocate_records_in_tree() {
+        records_in_tree = !keep_memory;
         if (keep_memory) return allocate_records();
-        // One node more than records: the vector's storage is 16-byte
-        // aligned, the records want 32.
-        allocate_records_after_nodes(size_t(n) + 1);
-    }
-
-    // Frees the records once the tree no longer needs them, unless the state
-    // is kept for further builds. (Records kept in the final node array's
-    // storage are overwritten by the placement.)
-    void release_records() {
-        if (keep_memory) return;
-        refs.release();
-        records = nullptr;
+        allocate_records_after_nodes(NodesBeforeRecords::initial_capacity(n));
     }
 
     // Computes records[first, last) from primitives first..last-1.

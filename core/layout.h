@@ -45,6 +45,7 @@
 #include <cstdint>
 #include <immintrin.h>
 #include <span>
+#include <utility>
 #include <vector>
 
 namespace canopy {
@@ -107,14 +108,24 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
     return first_child_slot(r.depth - 1u, rank.rank(pbegin), prights) + r.is_right;
 }
 
-// A subtree one worker built inline (see the top of this file).
+// A subtree one worker built inline (see the top of this file). Its nodes
+// are kept one of two ways, as the arena says (PlacementArena::over_records):
+//  - all `size` of them in the arena's chunks: chunks[chunk] from `first` on,
+//    then the following chunks from their start (it filled each but its last);
+//  - over its own records (a one-off build, whose records lie in the final
+//    node array's storage): block nodes 1 to `over_records` written over the
+//    records [root.begin, root.begin + over_records), which the subtree no
+//    longer needs once it is built, and the nodes after them, when the block
+//    has more nodes than records, in the chunks from (chunk, first) as above.
+//    Block node 0, the subtree's root, is not stored: `root` describes it
+//    (an inner root's first child is block node 1).
 struct SubtreeBlock {
     NodeRecord root;      // where the subtree's root sits in the tree
-    uint32_t chunk = 0;   // its nodes: the arena's chunks[chunk] from `first` on, then the
-                          // following chunks from their start (it filled each but its last)
+    uint32_t chunk = 0;
     uint32_t first = 0;
     uint32_t size = 0;
     uint32_t leaves = 0;
+    uint32_t over_records = 0;
 };
 
 // A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
@@ -138,6 +149,8 @@ struct PlacementArena {
     std::vector<SubtreeBlock> blocks;
     size_t chunk_nodes = size_t(1) << 17;   // chunk size (4 MiB)
     std::vector<NodeChunk> spare;           // emptied chunks of earlier builds
+    bool over_records = false;              // blocks are kept over their records (SubtreeBlock)
+    std::vector<Node> scratch;              // one block's nodes while it is built (over_records)
 
     // The chunk a new block starts in: the last one (ChunkedNodes moves on
     // when it is full).
@@ -157,6 +170,22 @@ struct PlacementArena {
             c.reserve(cap);  // NodeChunk's allocator advises huge pages itself
         }
         return chunks.emplace_back(std::move(c));
+    }
+    // Appends k nodes to the chunks, from where the last one has room and
+    // on into new ones; returns where they start (chunk, first).
+    std::pair<uint32_t, uint32_t> append(const Node* src, size_t k) {
+        NodeChunk* c = &open_chunk();
+        if (c->size() == c->capacity()) c = &new_chunk();
+        const std::pair<uint32_t, uint32_t> at{static_cast<uint32_t>(chunks.size() - 1),
+                                               static_cast<uint32_t>(c->size())};
+        while (k > 0) {
+            if (c->size() == c->capacity()) c = &new_chunk();
+            const size_t take = std::min(k, c->capacity() - c->size());
+            c->insert(c->end(), src, src + take);
+            src += take;
+            k -= take;
+        }
+        return at;
     }
     // Gives back the unused end of the last chunk (a copy into an array of
     // the exact size), once no block will be added.
@@ -183,7 +212,7 @@ struct PlacementArena {
     }
     size_t node_count() const {
         size_t n = records.size();
-        for (const auto& c : chunks) n += c.size();
+        for (const SubtreeBlock& b : blocks) n += b.size;
         return n;
     }
 };
@@ -280,57 +309,84 @@ inline void copy_shifted(const Node* src, size_t k, uint32_t shift, Node* dst) {
     }
 }
 
-// Writes one arena's records and blocks into their canonical slots of `nodes`.
-template <class Rank>
-void place_arena(const PlacementArena& arena, const Rank& rank, Node* nodes) {
-    for (const NodeRecord& r : arena.records) {
-        Node& n = nodes[canonical_slot(r, rank)];
-        n.set_box(r.box);
-        if (r.count) {
-            n.index = r.begin;
-            n.count = r.count;
-        } else {
-            n.index = first_child_slot(r.depth, rank.rank(r.begin), r.rights);
-            n.count = 0;
+// Copies `count` nodes of an arena's chunks, from chunks[chunk][first] on
+// and at the start of each following chunk (as a block fills them), to dst,
+// adding `shift` to inner nodes' child indices.
+inline void copy_from_chunks(const PlacementArena& a, uint32_t chunk, uint32_t first, size_t count, uint32_t shift,
+                             Node* dst) {
+    uint32_t k = chunk;
+    const Node* src = a.chunks[k].data() + first;
+    size_t left_here = a.chunks[k].size() - first;
+    while (count > 0) {
+        if (left_here == 0) {
+            ++k;
+            src = a.chunks[k].data();
+            left_here = a.chunks[k].size();
         }
-    }
-    for (const SubtreeBlock& b : arena.blocks) {
-        // The block's nodes: chunk b.chunk from b.first on, then the next
-        // chunks from their start, as many as it filled.
-        uint32_t k = b.chunk;
-        const Node* src = arena.chunks[k].data() + b.first;
-        size_t left_here = arena.chunks[k].size() - b.first;
-        // Block node i >= 1 goes to c + i - 1, c the root's first child slot;
-        // an inner node's relative child index j becomes c + j - 1.
-        const uint32_t c = src[0].is_leaf() ? 0 : first_child_slot(b.root.depth, rank.rank(b.root.begin), b.root.rights);
-        Node root = src[0];
-        if (!root.is_leaf()) root.index = c + root.index - 1;
-        nodes[canonical_slot(b.root, rank)] = root;
-        Node* dst = nodes + c;
-        ++src;
-        --left_here;
-        for (uint32_t i = 1; i < b.size;) {
-            if (left_here == 0) {
-                ++k;
-                src = arena.chunks[k].data();
-                left_here = arena.chunks[k].size();
-            }
-            const size_t take = std::min<size_t>(left_here, b.size - i);
-            copy_shifted(src, take, c - 1, dst);
-            src += take;
-            dst += take;
-            left_here -= take;
-            i += static_cast<uint32_t>(take);
-        }
+        const size_t take = std::min(left_here, count);
+        copy_shifted(src, take, shift, dst);
+        src += take;
+        dst += take;
+        left_here -= take;
+        count -= take;
     }
 }
 
-// Places all arenas into `nodes`. `for_each(k, fn)` runs fn(i) for i in
-// [0, k), possibly in parallel; the result does not depend on how.
-template <class ForEach>
-void place_nodes(std::span<const PlacementArena* const> arenas, std::vector<Node>& nodes, ForEach&& for_each) {
+// Writes the node a record describes (a task node, or a block's root) into
+// its canonical slot.
+template <class Rank>
+void place_record(const NodeRecord& r, const Rank& rank, Node* nodes) {
+    Node& n = nodes[canonical_slot(r, rank)];
+    n.set_box(r.box);
+    if (r.count) {
+        n.index = r.begin;
+        n.count = r.count;
+    } else {
+        n.index = first_child_slot(r.depth, rank.rank(r.begin), r.rights);
+        n.count = 0;
+    }
+}
+
+// The canonical slot of an inner block root's first child: block node i >= 1
+// goes to it + i - 1, and an inner node's relative child index j becomes
+// it + j - 1.
+template <class Rank>
+uint32_t block_first_child(const SubtreeBlock& b, const Rank& rank) {
+    return first_child_slot(b.root.depth, rank.rank(b.root.begin), b.root.rights);
+}
+
+// Copies the nodes after a block's root (block nodes 1 to size - 1) to `dst`,
+// its first child's canonical slot `c`, from wherever the arena keeps them
+// (`refs`: the records, over which an over_records arena wrote them).
+inline void place_block_body(const PlacementArena& a, const SubtreeBlock& b, const PrimRef* refs, uint32_t c,
+                             Node* dst) {
+    size_t body = b.size - 1;
+    if (a.over_records) {
+        copy_shifted(reinterpret_cast<const Node*>(refs + b.root.begin), b.over_records, c - 1, dst);
+        dst += b.over_records;
+        body -= b.over_records;
+        if (body) copy_from_chunks(a, b.chunk, b.first, body, c - 1, dst);
+    } else {
+        // The root is the chunks' node (b.chunk, b.first); the body follows.
+        copy_from_chunks(a, b.chunk, b.first + 1, body, c - 1, dst);
+    }
+}
+
+// Writes one arena's records and blocks into their canonical slots of `nodes`.
+template <class Rank>
+void place_arena(const PlacementArena& arena, const Rank& rank, const PrimRef* refs, Node* nodes) {
+    for (const NodeRecord& r : arena.records) place_record(r, rank, nodes);
+    for (const SubtreeBlock& b : arena.blocks) {
+        place_record(b.root, rank, nodes);
+        if (b.size <= 1) continue;
+        const uint32_t c = block_first_child(b, rank);
+        place_block_body(arena, b, refs, c, nodes + c);
+    }
+}
+
+// L(v) for every arena's pieces, and the number of nodes.
+inline size_t rank_pieces(std::span<const PlacementArena* const> arenas, PieceRank& rank) {
     size_t total = 0;
-    PieceRank rank;
     for (const PlacementArena* a : arenas) {
         total += a->node_count();
         for (const NodeRecord& r : a->records)
@@ -338,10 +394,74 @@ void place_nodes(std::span<const PlacementArena* const> arenas, std::vector<Node
         for (const SubtreeBlock& b : a->blocks) rank.add(b.root.begin, b.leaves);
     }
     rank.finish();
+    return total;
+}
+
+// Places all arenas into `nodes`, a fresh array. `for_each(k, fn)` runs fn(i)
+// for i in [0, k), possibly in parallel; the result does not depend on how.
+// `refs`: the records, for over_records arenas.
+template <class ForEach>
+void place_nodes(std::span<const PlacementArena* const> arenas, const PrimRef* refs, std::vector<Node>& nodes,
+                 ForEach&& for_each) {
+    PieceRank rank;
+    const size_t total = rank_pieces(arenas, rank);
     nodes.clear();
     reserve_on_huge_pages(nodes, total);
     nodes.resize(total);
-    for_each(arenas.size(), [&](size_t i) { place_arena(*arenas[i], rank, nodes.data()); });
+    for_each(arenas.size(), [&](size_t i) { place_arena(*arenas[i], rank, refs, nodes.data()); });
+}
+
+// Places over_records arenas into `nodes`, whose storage (its capacity; the
+// vector is empty) holds the records `refs` and, over them, the blocks'
+// nodes: in that same storage when the tree fits in it and every block's
+// nodes move towards the front (its canonical slots start at or before its
+// records, as when the tree has at most about one node per record up to
+// every point: the storage has a tenth more slots than records, in front of
+// them). The blocks move in the order of their ranges, each to slots
+// before those of every later block's records, so no block is overwritten
+// before it has moved; then the task nodes and the blocks' roots are
+// written. Otherwise (random triangles' trees: 1.86 nodes per record) the
+// tree goes into a fresh array and the storage is freed. Returns whether
+// the tree stayed in place.
+template <class ForEach>
+bool place_over_records(std::span<const PlacementArena* const> arenas, const PrimRef* refs, std::vector<Node>& nodes,
+                        ForEach&& for_each) {
+    PieceRank rank;
+    const size_t total = rank_pieces(arenas, rank);
+    struct Move {
+        const PlacementArena* arena;
+        const SubtreeBlock* block;
+        uint32_t c;
+    };
+    std::vector<Move> moves;
+    for (const PlacementArena* a : arenas)
+        for (const SubtreeBlock& b : a->blocks)
+            if (b.size > 1) moves.push_back({a, &b, 0});
+    std::sort(moves.begin(), moves.end(),
+              [](const Move& x, const Move& y) { return x.block->root.begin < y.block->root.begin; });
+    bool in_place = total <= nodes.capacity();
+    const auto at = [](const void* p) { return reinterpret_cast<std::uintptr_t>(p); };
+    for (Move& m : moves) {
+        m.c = block_first_child(*m.block, rank);
+        in_place = in_place && at(nodes.data() + m.c) <= at(refs + m.block->root.begin);
+    }
+    if (!in_place) {
+        std::vector<Node> fresh;
+        reserve_on_huge_pages(fresh, total);
+        fresh.resize(total);
+        for_each(arenas.size(), [&](size_t i) { place_arena(*arenas[i], rank, refs, fresh.data()); });
+        nodes.swap(fresh);
+        return false;
+    }
+    // Within the capacity: no reallocation, and Node() writes nothing.
+    nodes.resize(total);
+    Node* const out = nodes.data();
+    for (const Move& m : moves) place_block_body(*m.arena, *m.block, refs, m.c, out + m.c);
+    for_each(arenas.size(), [&](size_t i) {
+        for (const NodeRecord& r : arenas[i]->records) place_record(r, rank, out);
+        for (const SubtreeBlock& b : arenas[i]->blocks) place_record(b.root, rank, out);
+    });
+    return true;
 }
 
 }  // namespace canopy

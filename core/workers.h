@@ -39,7 +39,8 @@ struct Workers {
     // until the build ends, beside the records, so it is kept small beside
     // the scene (until late on 2026-12-02: a quarter of the share, at least
     // 1 MiB).
-    void reset(uint32_t count, uint32_t primitives, uint32_t chunk_nodes = 0) {
+    // `over_records`: the blocks are kept over their records (SubtreeBlock).
+    void reset(uint32_t count, uint32_t primitives, uint32_t chunk_nodes = 0, bool over_records = false) {
         w.resize(count);
         const size_t share = size_t(primitives) / (16 * size_t(std::max(1u, count)));
         size_t chunk = chunk_nodes ? chunk_nodes : std::clamp<size_t>(share, size_t(1) << 13, size_t(1) << 17);
@@ -57,6 +58,7 @@ struct Workers {
             w[i].skip = SkipCounts{};
             w[i].out.reset();
             w[i].out.chunk_nodes = chunk;
+            w[i].out.over_records = over_records;
         }
     }
     Worker& operator[](size_t i) { return w[i]; }

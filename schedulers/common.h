@@ -15,6 +15,7 @@
 
 #include <algorithm>
 #include <cassert>
+#include <cstring>
 #include <memory>
 #include <vector>
 
@@ -63,10 +64,42 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
     return split;
 }
 
+// run_subtree() of a one-off build (PlacementArena::over_records): the
+// subtree is built into the worker's scratch array (a few hundred KiB at
+// most under the default task cutoff), and then, its records being no
+// longer needed (its leaves wrote their ids to the permutation), its nodes
+// after the root are copied over them, as many as there are records; the
+// rest (a tree of more nodes than primitives) go to the worker's chunks.
+// Those records lie in the final node array's storage, in memory the build
+// has already brought in, and the placement then moves the nodes towards
+// the front of that storage (place_over_records() in core/layout.h): a
+// one-off build holds the tree once, instead of once in the chunks and once
+// in the final array.
+inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
+    std::vector<Node>& nodes = wk.out.scratch;
+    nodes.clear();
+    if (nodes.capacity() < size_t(root.size()) + 1) reserve_on_huge_pages(nodes, size_t(root.size()) + root.size() / 8 + 64);
+    GrowingNodes out(nodes);
+    SubtreeBlock b;
+    b.leaves = build_depth_first(ctx, root, out, *wk.bins, wk.skip, wk.id);
+    b.size = static_cast<uint32_t>(nodes.size());
+    b.root = NodeRecord::of(root, nodes[0].is_leaf());
+    const uint32_t body = b.size - 1;
+    b.over_records = std::min(body, root.size());
+    std::memcpy(static_cast<void*>(ctx.refs + root.begin), nodes.data() + 1, size_t(b.over_records) * sizeof(Node));
+    if (body > b.over_records) {
+        const auto [chunk, first] = wk.out.append(nodes.data() + 1 + b.over_records, body - b.over_records);
+        b.chunk = chunk;
+        b.first = first;
+    }
+    wk.out.blocks.push_back(b);
+}
+
 // Runs a whole subtree depth-first on worker `wk` (no further parallelism),
 // as one block in the sequential layout.
 inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
     const TraceScope trace(ctx.trace, root, wk.id, TraceSpan::Inline);
+    if (wk.out.over_records) return run_subtree_over_records(ctx, root, wk);
     ChunkedNodes out(wk.out);
     SubtreeBlock b;
     b.leaves = build_depth_first(ctx, root, out, *wk.bins, wk.skip, wk.id);
@@ -107,28 +140,23 @@ void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
 template <class ForEach>
 void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     const TraceScope trace(st.trace, st.n, 0, TraceSpan::Place);
-    // The records are no longer needed (the leaves wrote the permutation).
-    // They lie in the final node array's storage (allocate_records_in_tree()),
-    // which the placement then writes over when the tree fits there. When it
-    // does not, that storage goes before the final array is allocated, and
-    // so does the unused end of each worker's last chunk, so that they and
-    // the final array are not all held at once (a one-off build's peak is
-    // then the tree twice and the permutation, whichever worker built what).
-    st.release_records();
-    size_t total = 0;
-    for (auto& wk : workers.w) total += wk.out.node_count();
-    if (!st.keep_memory && st.bvh.nodes.capacity() < total) {
-        std::vector<Node>().swap(st.bvh.nodes);
-        for_each(static_cast<uint32_t>(workers.size()), [&](uint32_t i) { workers[i].out.trim(); });
-    }
     std::vector<const PlacementArena*> arenas;
     arenas.reserve(workers.size());
     for (auto& wk : workers.w) {
         arenas.push_back(&wk.out);
         st.stats.skipped.add(wk.skip);
     }
-    place_nodes(std::span<const PlacementArena* const>(arenas), st.bvh.nodes,
-                [&](size_t k, auto&& fn) { for_each(static_cast<uint32_t>(k), fn); });
+    const std::span<const PlacementArena* const> all(arenas);
+    auto each = [&](size_t k, auto&& fn) { for_each(static_cast<uint32_t>(k), fn); };
+    if (st.records_in_tree) {
+        // The blocks' nodes lie over the records, in bvh.nodes' storage
+        // (run_subtree_over_records()).
+        place_over_records(all, st.records, st.bvh.nodes, each);
+        st.records = nullptr;
+        return;
+    }
+    // A warm Builder: the records in their own array, the blocks in chunks.
+    place_nodes(all, st.records, st.bvh.nodes, each);
 }
 
 }  // namespace canopy::sched

@@ -721,7 +721,7 @@ std::vector<Node> place(const std::vector<std::vector<NodeRecord>>& records) {
         views.push_back(&arenas[i]);
     }
     std::vector<Node> nodes;
-    canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nodes, ReverseForEach{});
+    canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nullptr, nodes, ReverseForEach{});
     return nodes;
 }
 
@@ -940,7 +940,7 @@ TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
             for (auto& a : arenas) std::shuffle(a.records.begin(), a.records.end(), rng);
             std::vector<const canopy::PlacementArena*> views{&arenas[0], &arenas[1], &arenas[2]};
             std::vector<Node> nodes;
-            canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nodes, ReverseForEach{});
+            canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nullptr, nodes, ReverseForEach{});
             EXPECT_TRUE(same_nodes(nodes, b.nodes)) << "n=" << m.triangle_count() << " seed " << seed;
             total_blocks += blocks;
         }
@@ -994,7 +994,7 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
             EXPECT_EQ(arena.chunks.back().size(), arena.chunks.back().capacity());
             const canopy::PlacementArena* views[] = {&arena};
             std::vector<Node> nodes;
-            canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nodes, ReverseForEach{});
+            canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nullptr, nodes, ReverseForEach{});
             EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << in.refs.size() << " chunk " << chunk;
             EXPECT_EQ(in.perm, expected.permutation) << "n=" << in.refs.size() << " chunk " << chunk;
         }
