@@ -42,8 +42,12 @@ struct Workers {
     // `over_records`: the blocks are kept over their records (SubtreeBlock).
     void reset(uint32_t count, uint32_t primitives, uint32_t chunk_nodes = 0, bool over_records = false) {
         w.resize(count);
-        const size_t share = size_t(primitives) / (16 * size_t(std::max(1u, count)));
-        size_t chunk = chunk_nodes ? chunk_nodes : std::clamp<size_t>(share, size_t(1) << 13, size_t(1) << 17);
+        // Over their records (a one-off build), the chunks take only the
+        // nodes of subtrees that have more nodes than records: a few percent
+        // of a mesh's nodes, so an eighth of that size, from 1,024 nodes.
+        const size_t share = size_t(primitives) / ((over_records ? 128 : 16) * size_t(std::max(1u, count)));
+        size_t chunk = chunk_nodes ? chunk_nodes
+                                   : std::clamp<size_t>(share, size_t(1) << (over_records ? 10 : 13), size_t(1) << 17);
         // From 1 MiB on, a whole number of huge pages (2 MiB, 65,536
         // nodes): such a chunk starts on a 2 MiB boundary (NodeChunk,
         // allocate_huge) and faults one huge page at a time. The 4M scenes'

@@ -7,7 +7,11 @@
 # (2 MiB and more) to take the 2 MiB-aligned path of core/memory.h, whose
 # untouched alignment padding the probe must not count. The lower bound
 # (the records and the permutation alone are 36 bytes per triangle) keeps
-# a probe that stopped counting from passing.
+# a probe that stopped counting from passing. A one-off build holds its
+# tree once (the sequential driver's nodes over its records since 12a7c68,
+# the parallel drivers' subtrees since 825a86f: 39.2 and 41.5 measured),
+# so the upper bound here is 48, not the target's 72: a build that held the
+# tree twice again (68 and more) fails.
 set -eu
 canopy="$1"
 for scheduler in sequential tbb omp_tasks; do
@@ -15,6 +19,6 @@ for scheduler in sequential tbb omp_tasks; do
   per_tri=$(printf '%s\n' "$json" | sed -n 's/.*"peak_bytes_per_triangle":\([0-9.]*\).*/\1/p')
   echo "$scheduler: $per_tri bytes per triangle"
   awk -v b="$per_tri" -v s="$scheduler" 'BEGIN {
-    if (b == "" || !(b > 36 && b <= 72)) { print s ": peak " b " bytes per triangle, want (36, 72]"; exit 1 }
+    if (b == "" || !(b > 36 && b <= 48)) { print s ": peak " b " bytes per triangle, want (36, 48]"; exit 1 }
   }'
 done
