@@ -137,8 +137,10 @@ using NodeChunk = std::vector<Node, HugePageAllocator<Node>>;
 //
 // A worker's subtree blocks go one after another into chunks of nodes, and
 // a block that fills a chunk goes on in a new one (ChunkedNodes below), so
-// every chunk but the last ends full, and trim() gives back the last one's
-// unused end before the placement. (Until late on 2026-12-02 a block needed
+// every chunk but the last ends full. (Until 825a86f, 2026-12-05, the last
+// one's unused end was given back before the final array was allocated;
+// one-off builds no longer allocate one when the tree fits over the
+// records, and warm builds keep their chunks. Until late on 2026-12-02 a block needed
 // room for its bound, twice its primitives, in one chunk before it started,
 // so each chunk's end and the last chunk's unused part were waste that
 // depended on which worker built which subtree: the 2-thread peak of
@@ -186,15 +188,6 @@ struct PlacementArena {
             k -= take;
         }
         return at;
-    }
-    // Gives back the unused end of the last chunk (a copy into an array of
-    // the exact size), once no block will be added.
-    void trim() {
-        if (chunks.empty() || chunks.back().capacity() == chunks.back().size()) return;
-        NodeChunk exact;
-        exact.reserve(chunks.back().size());
-        exact.insert(exact.end(), chunks.back().begin(), chunks.back().end());
-        chunks.back().swap(exact);
     }
     // Empties the arena for another build; the chunks' memory is kept for
     // new_chunk() to reuse.
