@@ -56,7 +56,6 @@ struct BuildState {
     PrimRef* records = nullptr; // the records, partitioned in place
     Workers workers;            // the parallel drivers' per-thread scratch
     bool keep_memory = false;   // a warm Builder's state: release nothing early
-    bool records_in_tree = false;  // the parallel drivers' records in bvh.nodes' storage
     Bvh bvh;
     NodeTask root;
     BuildStats stats;
@@ -91,10 +90,13 @@ struct BuildState {
     // virtual machines, was written twice.) A warm Builder keeps the
     // records' own array, since its tree is swapped out.
     void allocate_records_in_tree() {
-        records_in_tree = !keep_memory;
-        if (keep_memory) return allocate_records();
+        if (!records_in_tree()) return allocate_records();
         allocate_records_after_nodes(NodesBeforeRecords::initial_capacity(n));
     }
+
+    // Whether allocate_records_in_tree() puts the records in bvh.nodes'
+    // storage (a one-off build) rather than in an array of their own.
+    bool records_in_tree() const { return !keep_memory; }
 
     // Computes records[first, last) from primitives first..last-1.
     PrepareSummary prepare_range(size_t first, size_t last) {

@@ -414,10 +414,9 @@ void place_nodes(std::span<const PlacementArena* const> arenas, const PrimRef* r
 // before those of every later block's records, so no block is overwritten
 // before it has moved; then the task nodes and the blocks' roots are
 // written. Otherwise (random triangles' trees: 1.86 nodes per record) the
-// tree goes into a fresh array and the storage is freed. Returns whether
-// the tree stayed in place.
+// tree goes into a fresh array and the storage is freed.
 template <class ForEach>
-bool place_over_records(std::span<const PlacementArena* const> arenas, const PrimRef* refs, std::vector<Node>& nodes,
+void place_over_records(std::span<const PlacementArena* const> arenas, const PrimRef* refs, std::vector<Node>& nodes,
                         ForEach&& for_each) {
     PieceRank rank;
     const size_t total = rank_pieces(arenas, rank);
@@ -444,7 +443,7 @@ bool place_over_records(std::span<const PlacementArena* const> arenas, const Pri
         fresh.resize(total);
         for_each(arenas.size(), [&](size_t i) { place_arena(*arenas[i], rank, refs, fresh.data()); });
         nodes.swap(fresh);
-        return false;
+        return;
     }
     // Within the capacity: no reallocation, and Node() writes nothing.
     nodes.resize(total);
@@ -454,7 +453,6 @@ bool place_over_records(std::span<const PlacementArena* const> arenas, const Pri
         for (const NodeRecord& r : arenas[i]->records) place_record(r, rank, out);
         for (const SubtreeBlock& b : arenas[i]->blocks) place_record(b.root, rank, out);
     });
-    return true;
 }
 
 }  // namespace canopy

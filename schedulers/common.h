@@ -148,7 +148,7 @@ void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     }
     const std::span<const PlacementArena* const> all(arenas);
     auto each = [&](size_t k, auto&& fn) { for_each(static_cast<uint32_t>(k), fn); };
-    if (st.records_in_tree) {
+    if (st.records_in_tree()) {
         // The blocks' nodes lie over the records, in bvh.nodes' storage
         // (run_subtree_over_records()).
         place_over_records(all, st.records, st.bvh.nodes, each);

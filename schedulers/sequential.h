@@ -24,11 +24,8 @@ struct Sequential {
         // One-off builds: the records at the end of the node array's storage,
         // the nodes filling it from the front (NodesBeforeRecords). A warm
         // Builder keeps a records array of its own (its tree is swapped out).
-        const bool own_records = st.keep_memory;
-        if (own_records)
-            st.allocate_records();
-        else
-            st.allocate_records_after_nodes(NodesBeforeRecords::initial_capacity(st.n));
+        const bool own_records = !st.records_in_tree();
+        st.allocate_records_in_tree();
         {
             const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
             st.finish_prepare(st.prepare_range(0, st.n));
