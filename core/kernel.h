@@ -1703,7 +1703,46 @@ inline bool exact_split(const PrimRef* r, uint32_t n, const Box& node_bounds, co
 
 // The partition of a small node by a mask from exact_split(): the records of
 // the mask first, then the others, each in their earlier order; child bounds
-// accumulated as partition() does.
+// accumulated as partition() does (each side's records grown in the same
+// order, so the same boxes). All records are loaded before any is stored,
+// each as one 256-bit vector, and the accumulators are locals grown with
+// blends: copied through an array first and grown through an indexed
+// ChildBounds4, both stayed in memory, and a profile of the 1M sphere had
+// 7% of the node task's samples on the reload after those stores.
+#if defined(__AVX__)
+inline PartitionResult partition_by_mask(PrimRef* refs, uint32_t begin, uint32_t end, uint32_t left) {
+    const uint32_t n = end - begin;
+    __m256 rec[kExactMaxPrims];
+    for (uint32_t i = 0; i < n; ++i) rec[i] = _mm256_loadu_ps(&refs[begin + i].lo.x);
+    const uint32_t mid = begin + uint32_t(std::popcount(left));
+    uint32_t at_left = begin, at_right = mid;
+    simd::Box4 b0, b1, c0, c1;
+    const __m128 keep = simd::xyz_mask();
+    for (uint32_t i = 0; i < n; ++i) {
+        const uint32_t goes_left = (left >> i) & 1;
+        _mm256_storeu_ps(&refs[goes_left ? at_left : at_right].lo.x, rec[i]);
+        at_left += goes_left;
+        at_right += goes_left ^ 1u;
+        const __m128 lo = _mm_and_ps(_mm256_castps256_ps128(rec[i]), keep);
+        const __m128 hi_area = _mm256_extractf128_ps(rec[i], 1);
+        const __m128 c = simd::centroid(lo, _mm_and_ps(hi_area, keep));
+        // All ones where the record goes left.
+        const __m128 m = _mm_castsi128_ps(_mm_set1_epi32(-int32_t(goes_left)));
+        const __m128 inf = simd::pos_inf(), ninf = simd::neg_inf();
+        b0.grow(_mm_blendv_ps(inf, lo, m), _mm_blendv_ps(ninf, hi_area, m));
+        c0.grow(_mm_blendv_ps(inf, c, m), _mm_blendv_ps(ninf, c, m));
+        b1.grow(_mm_blendv_ps(lo, inf, m), _mm_blendv_ps(hi_area, ninf, m));
+        c1.grow(_mm_blendv_ps(c, inf, m), _mm_blendv_ps(c, ninf, m));
+    }
+    PartitionResult r;
+    r.acc.bounds[0] = b0;
+    r.acc.bounds[1] = b1;
+    r.acc.cbounds[0] = c0;
+    r.acc.cbounds[1] = c1;
+    r.mid = mid;
+    return r;
+}
+#else
 inline PartitionResult partition_by_mask(PrimRef* refs, uint32_t begin, uint32_t end, uint32_t left) {
     const uint32_t n = end - begin;
     PrimRef copy[kExactMaxPrims];
@@ -1720,6 +1759,7 @@ inline PartitionResult partition_by_mask(PrimRef* refs, uint32_t begin, uint32_t
         }
     return PartitionResult{acc, begin + uint32_t(std::popcount(left))};
 }
+#endif
 
 // Everything a node task needs besides its own range.
 class TraceLog;
