@@ -43,6 +43,7 @@
 #include <bit>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <immintrin.h>
 #include <span>
 #include <utility>
@@ -404,6 +405,80 @@ void place_nodes(std::span<const PlacementArena* const> arenas, const PrimRef* r
     for_each(arenas.size(), [&](size_t i) { place_arena(*arenas[i], rank, refs, nodes.data()); });
 }
 
+// A block of an in-place placement: its arena, and its first child's
+// canonical slot.
+struct BlockMove {
+    const PlacementArena* arena;
+    const SubtreeBlock* block;
+    uint32_t c;
+};
+
+// Moves the blocks' bodies (sorted by range, each to slots at or before its
+// records: see place_over_records()) to their slots of `out`, split into
+// `groups` runs of consecutive blocks with about equal numbers of nodes,
+// run by for_each, in any order or at once. In order within a run, no block
+// overwrites another's nodes before they have moved (see below); across
+// runs, a block whose slots start before its run's first records may
+// overwrite the records of an earlier run's blocks, which may not have
+// moved yet: each run first copies such blocks (a prefix of it, since slots
+// and records both grow along the run) into a buffer of its own, then
+// moves the rest in order, and every buffer goes to its slots once all
+// runs are done. A run's own moves stay below its next run's first slot,
+// and so below that run's records. The buffers hold about the gap between
+// the slots and the records at each run's start: at most the storage's
+// slack (a tenth of a node per record).
+template <class ForEach>
+void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* out, size_t groups,
+                 ForEach&& for_each) {
+    groups = std::clamp<size_t>(groups, 1, std::max<size_t>(moves.size(), 1));
+    if (groups == 1) {
+        for (const BlockMove& m : moves) place_block_body(*m.arena, *m.block, refs, m.c, out + m.c);
+        return;
+    }
+    size_t body = 0;
+    for (const BlockMove& m : moves) body += m.block->size - 1;
+    std::vector<size_t> first(groups + 1, moves.size());
+    first[0] = 0;
+    size_t done = 0, g = 1;
+    for (size_t k = 0; k < moves.size() && g < groups; ++k) {
+        while (g < groups && done >= body * g / groups) first[g++] = k;
+        done += moves[k].block->size - 1;
+    }
+    const auto at = [](const void* p) { return reinterpret_cast<std::uintptr_t>(p); };
+    std::vector<std::vector<Node>> buffer(groups);
+    std::vector<size_t> buffered_end(groups);
+    for_each(groups, [&](size_t r) {
+        size_t k = first[r], e = k;
+        if (r > 0 && k < first[r + 1]) {
+            // Blocks whose slots start below this run's first records.
+            const std::uintptr_t limit = at(refs + moves[k].block->root.begin);
+            size_t count = 0;
+            for (; e < first[r + 1] && at(out + moves[e].c) < limit; ++e) count += moves[e].block->size - 1;
+            reserve_on_huge_pages(buffer[r], count);
+            buffer[r].resize(count);  // Node() writes nothing
+            Node* dst = buffer[r].data();
+            for (; k < e; ++k) {
+                const BlockMove& m = moves[k];
+                place_block_body(*m.arena, *m.block, refs, m.c, dst);
+                dst += m.block->size - 1;
+            }
+        }
+        buffered_end[r] = e;
+        for (; k < first[r + 1]; ++k) {
+            const BlockMove& m = moves[k];
+            place_block_body(*m.arena, *m.block, refs, m.c, out + m.c);
+        }
+    });
+    for_each(groups, [&](size_t r) {
+        const Node* src = buffer[r].data();
+        for (size_t k = first[r]; k < buffered_end[r]; ++k) {
+            const size_t size = moves[k].block->size - 1;
+            std::memcpy(static_cast<void*>(out + moves[k].c), src, size * sizeof(Node));
+            src += size;
+        }
+    });
+}
+
 // Places over_records arenas into `nodes`, whose storage (its capacity; the
 // vector is empty) holds the records `refs` and, over them, the blocks'
 // nodes: in that same storage when the tree fits in it and every block's
@@ -413,27 +488,24 @@ void place_nodes(std::span<const PlacementArena* const> arenas, const PrimRef* r
 // them). The blocks move in the order of their ranges, each to slots
 // before those of every later block's records, so no block is overwritten
 // before it has moved; then the task nodes and the blocks' roots are
-// written. Otherwise (random triangles' trees: 1.86 nodes per record) the
-// tree goes into a fresh array and the storage is freed.
+// written; a tree of at least `parallel_min` nodes moves split over the
+// arenas' workers (move_blocks()). A tree that does not fit this way
+// (random triangles' trees: 1.86 nodes per record) goes into a fresh array
+// and the storage is freed.
 template <class ForEach>
 void place_over_records(std::span<const PlacementArena* const> arenas, const PrimRef* refs, std::vector<Node>& nodes,
-                        ForEach&& for_each) {
+                        ForEach&& for_each, size_t parallel_min = 0) {
     PieceRank rank;
     const size_t total = rank_pieces(arenas, rank);
-    struct Move {
-        const PlacementArena* arena;
-        const SubtreeBlock* block;
-        uint32_t c;
-    };
-    std::vector<Move> moves;
+    std::vector<BlockMove> moves;
     for (const PlacementArena* a : arenas)
         for (const SubtreeBlock& b : a->blocks)
             if (b.size > 1) moves.push_back({a, &b, 0});
     std::sort(moves.begin(), moves.end(),
-              [](const Move& x, const Move& y) { return x.block->root.begin < y.block->root.begin; });
+              [](const BlockMove& x, const BlockMove& y) { return x.block->root.begin < y.block->root.begin; });
     bool in_place = total <= nodes.capacity();
     const auto at = [](const void* p) { return reinterpret_cast<std::uintptr_t>(p); };
-    for (Move& m : moves) {
+    for (BlockMove& m : moves) {
         m.c = block_first_child(*m.block, rank);
         in_place = in_place && at(nodes.data() + m.c) <= at(refs + m.block->root.begin);
     }
@@ -448,7 +520,7 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
     // Within the capacity: no reallocation, and Node() writes nothing.
     nodes.resize(total);
     Node* const out = nodes.data();
-    for (const Move& m : moves) place_block_body(*m.arena, *m.block, refs, m.c, out + m.c);
+    move_blocks(moves, refs, out, total >= parallel_min ? arenas.size() : 1, for_each);
     for_each(arenas.size(), [&](size_t i) {
         for (const NodeRecord& r : arenas[i]->records) place_record(r, rank, out);
         for (const SubtreeBlock& b : arenas[i]->blocks) place_record(b.root, rank, out);

@@ -22,6 +22,7 @@ struct SchedulerTuning {
     uint32_t task_cutoff = 4096;         // smaller nodes run their subtree inline
     uint32_t parallel_node_min = 65536;  // smaller nodes never run team-parallel
     uint32_t chunk_nodes = 0;            // nodes per chunk of a worker's subtree blocks; 0: from the scene size
+    uint32_t place_parallel_min = 32768; // smaller trees are moved into place on one thread
 };
 
 struct BuildOptions {

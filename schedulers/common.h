@@ -151,7 +151,7 @@ void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     if (st.records_in_tree()) {
         // The blocks' nodes lie over the records, in bvh.nodes' storage
         // (run_subtree_over_records()).
-        place_over_records(all, st.records, st.bvh.nodes, each);
+        place_over_records(all, st.records, st.bvh.nodes, each, st.options.tuning.place_parallel_min);
         st.records = nullptr;
         return;
     }

@@ -13,6 +13,7 @@
 #include "core/scene.h"
 #include "core/sah.h"
 #include "core/validate.h"
+#include "schedulers/common.h"
 #include "schedulers/sequential.h"
 #include "test_util.h"
 
@@ -996,6 +997,68 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
             EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << in.refs.size() << " chunk " << chunk;
             EXPECT_EQ(in.perm, expected.permutation) << "n=" << in.refs.size() << " chunk " << chunk;
         }
+    }
+}
+
+TEST(BuildLayout, InPlaceMovesSplitOverWorkersInAnyOrder) {
+    // A one-off parallel build by hand: the records at the end of the final
+    // array's storage, big nodes run as tasks, subtrees below 600 records
+    // built over their own records (run_subtree_over_records) by three
+    // workers in turn, and then placed in place with the moves split into
+    // three runs, run last to first (ReverseForEach): each run must copy
+    // aside the blocks whose slots lie over an earlier run's records before
+    // it moves the rest, or it overwrites blocks that have not moved. The
+    // sphere's blocks fit over their records; with the random triangles
+    // some have more nodes than records and go on in the workers' chunks.
+    TriangleMesh mixed = canopy::generate("sphere", 20000, 1);
+    const TriangleMesh extra = canopy::generate("random", 1500, 3);
+    const uint32_t shift = uint32_t(mixed.vertices.size());
+    mixed.vertices.insert(mixed.vertices.end(), extra.vertices.begin(), extra.vertices.end());
+    for (uint32_t i : extra.indices) mixed.indices.push_back(i + shift);
+    const TriangleMesh meshes[] = {canopy::generate("sphere", 20000, 1), mixed};
+    for (const TriangleMesh& m : meshes) {
+        const BuildOptions opt;
+        const Bvh expected = build(m, opt);
+        const uint32_t n = uint32_t(m.triangle_count());
+        std::vector<Node> nodes;
+        canopy::reserve_on_huge_pages(nodes, canopy::NodesBeforeRecords::initial_capacity(n));
+        const size_t storage = nodes.capacity();
+        canopy::PrimRef* refs = canopy::NodesBeforeRecords::records_at_end(nodes.data(), storage, n);
+        const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs);
+        ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
+        canopy::NodeTask root;
+        root.begin = 0;
+        root.end = n;
+        root.bounds = s.bounds;
+        root.cbounds = s.cbounds;
+        root.max_area = s.max_area;
+        std::vector<uint32_t> perm(n, ~0u);
+        const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
+        canopy::Workers workers(3, n);
+        workers.reset(3, n, 24, true);
+        std::vector<canopy::NodeTask> pending{root};
+        uint32_t turn = 0, subtrees = 0;
+        while (!pending.empty()) {
+            const canopy::NodeTask t = pending.back();
+            pending.pop_back();
+            canopy::Worker& wk = workers[turn++ % 3];
+            if (t.size() < 600) {
+                canopy::sched::run_subtree_over_records(ctx, t, wk);
+                ++subtrees;
+                continue;
+            }
+            canopy::NodeTask children[2];
+            const bool split = canopy::run_node(ctx, t, children, *wk.bins, wk.skip);
+            wk.out.records.push_back(NodeRecord::of(t, !split));
+            if (split) pending.insert(pending.end(), {children[0], children[1]});
+        }
+        ASSERT_GT(subtrees, 30u);
+        const canopy::PlacementArena* views[] = {&workers[0].out, &workers[1].out, &workers[2].out};
+        canopy::place_over_records(std::span<const canopy::PlacementArena* const>(views), refs, nodes,
+                                   ReverseForEach{}, 0);
+        EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << n;
+        EXPECT_EQ(perm, expected.permutation) << "n=" << n;
+        EXPECT_EQ(nodes.capacity(), storage) << "n=" << n << ": placed in the records' storage";
     }
 }
 

@@ -95,6 +95,7 @@ inline BuildOptions small_tuning(uint32_t bins, uint32_t threads) {
     o.tuning.task_cutoff = 64;
     o.tuning.parallel_node_min = 512;
     o.tuning.chunk_nodes = 24;  // blocks outgrow their chunks and move
+    o.tuning.place_parallel_min = 0;  // blocks move into place split over the workers
     return o;
 }
 
