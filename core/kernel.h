@@ -423,8 +423,36 @@ struct BinMapper {
 #else
 #define CANOPY_PACKED_COUNTS 0
 #endif
+//
+// The bins of axis a are base[a * stride, a * stride + bins), stride being
+// the node's bin count rounded up to four (clear() sets it), in storage a
+// BinSet owns: a node's bins lie together (3 KiB for 32 bins), and the
+// second set of the binning of large ranges right after them. (Until
+// 2026-12-05 each axis had room for kMaxBins, 8 KiB apart, and the second
+// set was 24 KiB further: a node's hot bins spread over six or seven 4 KiB
+// pages. On this project's virtual machine the time of the bin updates
+// depended on which physical pages the bins got, stable for as long as a
+// set lived: binning the same 202,520 records into twelve sets allocated
+// one after another took 0.8 ms for most and 1.0 to 1.9 ms for a third of
+// them, and whole sequential builds of dragon_vrip_res2 took 33 ms in some
+// processes and 41 to 50 in others, the extra samples all in the bin
+// updates. With the bins of a 32-bin node together, a tenth of the sets
+// were slow, by at most 1.3x. Why pages differ was not found: no hardware
+// counters here.)
 struct BinArrays {
-    simd::MinBox bounds[3][kMaxBins];  // (lo, -hi): see simd::MinBox
+    simd::MinBox* base = nullptr;  // (lo, -hi): see simd::MinBox
+    uint32_t stride = 0;
+#if !CANOPY_PACKED_COUNTS
+    uint32_t* counts = nullptr;  // bin k of axis a: counts[a * stride + k]
+#endif
+    simd::MinBox& at(int axis, uint32_t k) { return base[size_t(axis) * stride + k]; }
+    const simd::MinBox& at(int axis, uint32_t k) const { return base[size_t(axis) * stride + k]; }
+    // The three axes' first bins, for the hot loops (locals stay in
+    // registers, where the fields would be reloaded after every store).
+    struct Axes {
+        simd::MinBox* a[3];
+    };
+    Axes axes() const { return {{base, base + stride, base + 2 * size_t(stride)}}; }
 #if CANOPY_PACKED_COUNTS
     // An empty bin: an empty box with count 0.
     static simd::MinBox empty() {
@@ -433,68 +461,71 @@ struct BinArrays {
     }
     // What add() takes for a record.
     static __m256 record(const PrimRef& x) { return simd::MinBox::counted(x); }
-    // Adds a record (record()) to bin k of an axis.
-    void add(int axis, int32_t k, __m256 rec) {
-        add(axis, k, rec, _mm256_setr_epi32(0, 0, 0, 1, 0, 0, 0, 0));
-    }
-    // add() of `inc` records (lane 3 of inc) whose boxes' minimum is rec.
-    void add(int axis, int32_t k, __m256 rec, __m256i inc) {
-        simd::MinBox& b = bounds[axis][k];
+    // Adds `inc` records (lane 3 of inc) whose boxes' minimum is rec to bin b.
+    static void add(simd::MinBox& b, __m256 rec, __m256i inc) {
         b.v = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(_mm256_min_ps(rec, b.v)), inc));
     }
+    static __m256i one() { return _mm256_setr_epi32(0, 0, 0, 1, 0, 0, 0, 0); }
+    // Adds a record (record()) to bin k of an axis.
+    void add(int axis, int32_t k, __m256 rec) { add(at(axis, uint32_t(k)), rec, one()); }
     uint32_t count(int axis, uint32_t b) const {
-        return uint32_t(_mm_extract_epi32(_mm_castps_si128(_mm256_castps256_ps128(bounds[axis][b].v)), 3));
+        return uint32_t(_mm_extract_epi32(_mm_castps_si128(_mm256_castps256_ps128(at(axis, b).v)), 3));
     }
     void set_count(int axis, uint32_t b, uint32_t n) {  // for tests
-        const __m128i lo = _mm_insert_epi32(_mm_castps_si128(_mm256_castps256_ps128(bounds[axis][b].v)), int(n), 3);
-        bounds[axis][b].v = _mm256_insertf128_ps(bounds[axis][b].v, _mm_castsi128_ps(lo), 0);
+        simd::MinBox& x = at(axis, b);
+        const __m128i lo = _mm_insert_epi32(_mm_castps_si128(_mm256_castps256_ps128(x.v)), int(n), 3);
+        x.v = _mm256_insertf128_ps(x.v, _mm_castsi128_ps(lo), 0);
     }
     // Bin b's counts on the three axes, (x, y, z, 0).
     __m128i count_row(uint32_t b) const {
-        const __m128 x = _mm256_castps256_ps128(bounds[0][b].v), y = _mm256_castps256_ps128(bounds[1][b].v),
-                     z = _mm256_castps256_ps128(bounds[2][b].v);
+        const __m128 x = _mm256_castps256_ps128(at(0, b).v), y = _mm256_castps256_ps128(at(1, b).v),
+                     z = _mm256_castps256_ps128(at(2, b).v);
         // (x3, y3, z3, 0) from (x2, y2, x3, y3) and (z2, 0, z3, 0).
         return _mm_castps_si128(_mm_movehl_ps(_mm_unpackhi_ps(z, _mm_setzero_ps()), _mm_unpackhi_ps(x, y)));
     }
 #else
-    uint32_t counts[3][kMaxBins];
     static simd::MinBox empty() { return simd::MinBox{}; }
     static auto record(const PrimRef& x) { return simd::MinBox::of(x); }
     template <class Rec>  // record()
     void add(int axis, int32_t k, const Rec& rec) {
-        bounds[axis][k].grow(rec);
-        counts[axis][k]++;
+        at(axis, uint32_t(k)).grow(rec);
+        counts[size_t(axis) * stride + uint32_t(k)]++;
     }
-    uint32_t count(int axis, uint32_t b) const { return counts[axis][b]; }
-    void set_count(int axis, uint32_t b, uint32_t n) { counts[axis][b] = n; }
+    uint32_t count(int axis, uint32_t b) const { return counts[size_t(axis) * stride + b]; }
+    void set_count(int axis, uint32_t b, uint32_t n) { counts[size_t(axis) * stride + b] = n; }
 #endif
 
-    Box box(int axis, uint32_t b) const { return bounds[axis][b].box4().box(); }
+    Box box(int axis, uint32_t b) const { return at(axis, b).box4().box(); }
+    // Empties the first `bins` bins of each axis (and up to the next
+    // multiple of 4) and sets the stride for them.
     void clear(uint32_t bins) {
-        // Four bins at a time, up to the next multiple of 4 (kMaxBins is one):
-        // most nodes have 4 bins; std::fill_n became a memset call per axis
-        // for the counts and a loop of one box per turn for the boxes.
+        // Four bins at a time: most nodes have 4 bins; std::fill_n became a
+        // memset call per axis for the counts and a loop of one box per turn
+        // for the boxes.
         static_assert(kMaxBins % 4 == 0);
+        stride = (bins + 3) & ~3u;
         const simd::MinBox none = empty();
-        for (int a = 0; a < 3; ++a)
-            for (uint32_t b = 0; b < bins; b += 4) {
-                bounds[a][b] = bounds[a][b + 1] = bounds[a][b + 2] = bounds[a][b + 3] = none;
+        simd::MinBox* const b = base;
+        for (uint32_t i = 0; i < 3 * stride; i += 4) {
+            b[i] = b[i + 1] = b[i + 2] = b[i + 3] = none;
 #if !CANOPY_PACKED_COUNTS
-                _mm_storeu_si128(reinterpret_cast<__m128i*>(counts[a] + b), _mm_setzero_si128());
+            _mm_storeu_si128(reinterpret_cast<__m128i*>(counts + i), _mm_setzero_si128());
 #endif
-            }
+        }
     }
-    // Exact merge (min/max and integer sums): order-independent.
+    // Exact merge (min/max and integer sums): order-independent. Both sets
+    // cleared for the same bins.
     void merge(const BinArrays& o, uint32_t bins) {
+        assert(o.stride == stride && bins <= stride);
         for (int a = 0; a < 3; ++a)
             for (uint32_t b = 0; b < bins; ++b) {
 #if CANOPY_PACKED_COUNTS
-                const __m256 x = o.bounds[a][b].v, y = bounds[a][b].v;
+                const __m256 x = o.at(a, b).v, y = at(a, b).v;
                 const __m256 sum = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(x), _mm256_castps_si256(y)));
-                bounds[a][b].v = _mm256_blend_ps(_mm256_min_ps(y, x), sum, 0x08);  // lane 3: the counts' sum
+                at(a, b).v = _mm256_blend_ps(_mm256_min_ps(y, x), sum, 0x08);  // lane 3: the counts' sum
 #else
-                bounds[a][b].grow(o.bounds[a][b]);
-                counts[a][b] += o.counts[a][b];
+                at(a, b).grow(o.at(a, b));
+                counts[size_t(a) * stride + b] += o.counts[size_t(a) * o.stride + b];
 #endif
             }
     }
@@ -503,14 +534,41 @@ struct BinArrays {
 // bin() goes over the records in blocks of this many (see there).
 inline constexpr uint32_t kBinBlock = 64;
 
-// The bins a node is binned into, with a second set that bin() uses as
+// The bins a node is binned into, with a second set (odd) that bin() uses as
 // scratch for large ranges (see there); only the first set is the result.
 // `index` holds the bin indices (one lane per axis) of the last block of
 // records that bin() went over: for a node of at most kBinBlock records,
-// those of all its records, which partition_binned() reuses.
+// those of all its records, which partition_binned() reuses. The bins of
+// both sets live in `storage`, the first set's from its start and the
+// second's right after them (second()). Not copyable: the sets point into
+// the object.
 struct BinSet : BinArrays {
     BinArrays odd;
     alignas(32) int32_t index[kBinBlock][4];
+    alignas(32) simd::MinBox storage[6 * kMaxBins];
+#if !CANOPY_PACKED_COUNTS
+    uint32_t count_storage[6 * kMaxBins];
+#endif
+    BinSet() {
+        base = storage;
+#if !CANOPY_PACKED_COUNTS
+        counts = count_storage;
+#endif
+        clear(kMaxBins);
+    }
+    BinSet(const BinSet&) = delete;
+    BinSet& operator=(const BinSet&) = delete;
+    // The second set, cleared for `bins` bins, right after the first set's
+    // bins (clear() the first set for the same bins first).
+    BinArrays& second(uint32_t bins) {
+        assert(stride == ((bins + 3) & ~3u));
+        odd.base = storage + 3 * size_t(stride);
+#if !CANOPY_PACKED_COUNTS
+        odd.counts = count_storage + 3 * size_t(stride);
+#endif
+        odd.clear(bins);
+        return odd;
+    }
 };
 
 // Step 1: bin the centroids of refs[begin, end) on every valid axis, in one
@@ -542,7 +600,17 @@ inline constexpr uint32_t kTwoBinSetsMin = 256;
 
 namespace detail {
 
-// Adds record x to set's bins ki on all three axes.
+#if CANOPY_PACKED_COUNTS
+// Adds record x to bins ki of the three axes of a set (BinArrays::axes()).
+inline void update(const BinArrays::Axes& set, const PrimRef& x, const int32_t (&ki)[4]) {
+    const auto box = BinArrays::record(x);
+    const __m256i one = BinArrays::one();
+    BinArrays::add(set.a[0][ki[0]], box, one);
+    BinArrays::add(set.a[1][ki[1]], box, one);
+    BinArrays::add(set.a[2][ki[2]], box, one);
+}
+#endif
+// The same through the set (counts of their own without AVX2).
 inline void update(BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
     const auto box = BinArrays::record(x);
     set.add(0, ki[0], box);
@@ -569,17 +637,18 @@ inline void update(BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
 // cow 0.98x (the cow and dragon within their noise). The same merging
 // in the one-set path (ranges under kTwoBinSetsMin) was slower everywhere
 // (1.02x to 1.03x), and eights on top of fours gained nothing (1.00x).
-inline void merged_updates(BinArrays& s0, BinArrays& s1, const PrimRef* r, const int32_t (*k)[4], uint32_t n) {
+inline void merged_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, const int32_t (*k)[4], uint32_t n) {
     uint32_t i = 0;
 #if CANOPY_PACKED_COUNTS
+    const BinArrays::Axes s0 = set0.axes(), s1 = set1.axes();
     const auto row = [&](uint32_t j) { return _mm_load_si128(reinterpret_cast<const __m128i*>(k[j])); };
-    const auto add3 = [&](BinArrays& set, uint32_t j, __m256 box, uint32_t count) {
+    const auto add3 = [&](const BinArrays::Axes& set, uint32_t j, __m256 box, uint32_t count) {
         const __m256i inc = _mm256_setr_epi32(0, 0, 0, int(count), 0, 0, 0, 0);
-        set.add(0, k[j][0], box, inc);
-        set.add(1, k[j][1], box, inc);
-        set.add(2, k[j][2], box, inc);
+        BinArrays::add(set.a[0][k[j][0]], box, inc);
+        BinArrays::add(set.a[1][k[j][1]], box, inc);
+        BinArrays::add(set.a[2][k[j][2]], box, inc);
     };
-    const auto pair = [&](BinArrays& merged, uint32_t j) {
+    const auto pair = [&](const BinArrays::Axes& merged, uint32_t j) {
         if (_mm_movemask_epi8(_mm_cmpeq_epi32(row(j), row(j + 1))) == 0xFFFF) {
             add3(merged, j, _mm256_min_ps(BinArrays::record(r[j]), BinArrays::record(r[j + 1])), 2);
         } else {
@@ -587,7 +656,7 @@ inline void merged_updates(BinArrays& s0, BinArrays& s1, const PrimRef* r, const
             update(s1, r[j + 1], k[j + 1]);
         }
     };
-    BinArrays* sets[2] = {&s0, &s1};
+    const BinArrays::Axes* sets[2] = {&s0, &s1};
     uint32_t t = 0;
     for (; i + 3 < n; i += 4) {
         const __m128i a = row(i);
@@ -603,12 +672,18 @@ inline void merged_updates(BinArrays& s0, BinArrays& s1, const PrimRef* r, const
             pair(s1, i + 2);
         }
     }
-#endif
     for (; i + 1 < n; i += 2) {
         update(s0, r[i], k[i]);
         update(s1, r[i + 1], k[i + 1]);
     }
     if (i < n) update(s0, r[i], k[i]);
+#else
+    for (; i + 1 < n; i += 2) {
+        update(set0, r[i], k[i]);
+        update(set1, r[i + 1], k[i + 1]);
+    }
+    if (i < n) update(set0, r[i], k[i]);
+#endif
 }
 
 // bin() over blocks of records; Two: every other record into out.odd;
@@ -666,7 +741,12 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         } else if (na == 3) {
             // The common case, unrolled: the three axes' updates are
             // independent chains.
+#if CANOPY_PACKED_COUNTS
+            const BinArrays::Axes set = out.axes();
+            for (uint32_t i = 0; i < n; ++i) update(set, r[i], k[i]);
+#else
             for (uint32_t i = 0; i < n; ++i) update(out, r[i], k[i]);
+#endif
         } else {
             for (uint32_t i = 0; i < n; ++i) {
                 const auto box = BinArrays::record(r[i]);
@@ -685,7 +765,7 @@ inline bool two_bin_sets(const BinMapper& m, uint32_t begin, uint32_t end) {
 template <bool Pre>
 [[gnu::noinline]] void bin_two_sets(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m,
                                     BinSet& out) {
-    out.odd.clear(m.bins);
+    out.second(m.bins);
     bin_blocks<true, Pre>(refs, begin, end, m, out);
     out.merge(out.odd, m.bins);
 }
@@ -767,7 +847,8 @@ bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bou
 #else
     for (uint32_t b = 0; b < nb; b += 4) {
         const auto row = [&](int a) {
-            return _mm_castsi128_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(bins.counts[a] + b)));
+            return _mm_castsi128_ps(
+                _mm_loadu_si128(reinterpret_cast<const __m128i*>(bins.counts + size_t(a) * bins.stride + b)));
         };
         __m128 x = row(0), y = row(1), z = row(2), w = _mm_setzero_ps();
         _MM_TRANSPOSE4_PS(x, y, z, w);
@@ -785,10 +866,11 @@ bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bou
     // starts at 0, so that the minimum with the bins' counts (small integers,
     // as floats subnormal) stays 0: Measure then computes with no subnormal.
     const simd::MinBox empty = BinArrays::empty();
+    const BinArrays::Axes ax = bins.axes();
     simd::MinBox acc[3] = {empty, empty, empty};
     __m128i n = zero;
     for (uint32_t b = nb - 1; b > 0; --b) {
-        for (int a = 0; a < 3; ++a) acc[a].grow(bins.bounds[a][b]);
+        for (int a = 0; a < 3; ++a) acc[a].grow(ax.a[a][b]);
         n = _mm_add_epi32(n, counts(b));
         const __m128 empty = _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero));
         const __m128 cost = _mm_mul_ps(measure.three(acc), to_float(n));
@@ -808,7 +890,7 @@ bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bou
     for (int a = 0; a < 3; ++a) acc[a] = empty;
     n = zero;
     for (uint32_t s = 1; s < nb; ++s) {
-        for (int a = 0; a < 3; ++a) acc[a].grow(bins.bounds[a][s - 1]);
+        for (int a = 0; a < 3; ++a) acc[a].grow(ax.a[a][s - 1]);
         n = _mm_add_epi32(n, counts(s - 1));
         const __m128 sum = _mm_add_ps(_mm_mul_ps(measure.three(acc), to_float(n)), right_cost[s]);
         // A candidate: a valid axis, both sides non-empty, and strictly
