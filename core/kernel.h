@@ -436,9 +436,9 @@ struct BinMapper {
 // one after another took 0.8 ms for most and 1.0 to 1.9 ms for a third of
 // them, and whole sequential builds of dragon_vrip_res2 took 33 ms in some
 // processes and 41 to 50 in others, the extra samples all in the bin
-// updates. With the bins of a 32-bin node together, a tenth of the sets
-// were slow, by at most 1.3x. Why pages differ was not found: no hardware
-// counters here.)
+// updates. With the bins of a node together, 3 of 72 sets were slow (1.2
+// to 1.6 ms), and 1 of 10 dragon processes. Why pages differ was not
+// found: no hardware counters here. README, "Where the bins land".)
 struct BinArrays {
     simd::MinBox* base = nullptr;  // (lo, -hi): see simd::MinBox
     uint32_t stride = 0;
@@ -549,12 +549,12 @@ struct BinSet : BinArrays {
 #if !CANOPY_PACKED_COUNTS
     uint32_t count_storage[6 * kMaxBins];
 #endif
-    BinSet() {
+    BinSet() {  // clear() before use
         base = storage;
+        stride = kMaxBins;
 #if !CANOPY_PACKED_COUNTS
         counts = count_storage;
 #endif
-        clear(kMaxBins);
     }
     BinSet(const BinSet&) = delete;
     BinSet& operator=(const BinSet&) = delete;
@@ -610,7 +610,8 @@ inline void update(const BinArrays::Axes& set, const PrimRef& x, const int32_t (
     BinArrays::add(set.a[2][ki[2]], box, one);
 }
 #endif
-// The same through the set (counts of their own without AVX2).
+// Adds record x to set's bins ki on all three axes, through the set (the
+// path without AVX2, whose counts are an array of their own).
 inline void update(BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
     const auto box = BinArrays::record(x);
     set.add(0, ki[0], box);
