@@ -558,15 +558,16 @@ struct BinSet : BinArrays {
     }
     BinSet(const BinSet&) = delete;
     BinSet& operator=(const BinSet&) = delete;
-    // The second set, cleared for `bins` bins, right after the first set's
-    // bins (clear() the first set for the same bins first).
+    // The second set, cleared, right after the first set's bins and with
+    // their stride (the first set cleared for at least `bins` bins).
     BinArrays& second(uint32_t bins) {
-        assert(stride == ((bins + 3) & ~3u));
+        assert(bins <= stride);
+        (void)bins;
         odd.base = storage + 3 * size_t(stride);
 #if !CANOPY_PACKED_COUNTS
         odd.counts = count_storage + 3 * size_t(stride);
 #endif
-        odd.clear(bins);
+        odd.clear(stride);
         return odd;
     }
 };
