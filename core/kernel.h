@@ -620,6 +620,14 @@ inline void update(BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
     set.add(2, ki[2], box);
 }
 
+// What the hot loops hand to update(): the axes' bin pointers as locals with
+// AVX2, the set itself otherwise.
+#if CANOPY_PACKED_COUNTS
+inline BinArrays::Axes hot(BinArrays& set) { return set.axes(); }
+#else
+inline BinArrays& hot(BinArrays& set) { return set; }
+#endif
+
 // The bin updates of a block of records whose indices are in k (bin()'s
 // two-set path): record i goes to set s0 for even i and s1 for odd i, except
 // that four aligned neighbours (or two) with the same bins on all three axes
@@ -641,8 +649,9 @@ inline void update(BinArrays& set, const PrimRef& x, const int32_t (&ki)[4]) {
 // (1.02x to 1.03x), and eights on top of fours gained nothing (1.00x).
 inline void merged_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, const int32_t (*k)[4], uint32_t n) {
     uint32_t i = 0;
+    auto&& s0 = hot(set0);
+    auto&& s1 = hot(set1);
 #if CANOPY_PACKED_COUNTS
-    const BinArrays::Axes s0 = set0.axes(), s1 = set1.axes();
     const auto row = [&](uint32_t j) { return _mm_load_si128(reinterpret_cast<const __m128i*>(k[j])); };
     const auto add3 = [&](const BinArrays::Axes& set, uint32_t j, __m256 box, uint32_t count) {
         const __m256i inc = _mm256_setr_epi32(0, 0, 0, int(count), 0, 0, 0, 0);
@@ -674,18 +683,12 @@ inline void merged_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, c
             pair(s1, i + 2);
         }
     }
+#endif
     for (; i + 1 < n; i += 2) {
         update(s0, r[i], k[i]);
         update(s1, r[i + 1], k[i + 1]);
     }
     if (i < n) update(s0, r[i], k[i]);
-#else
-    for (; i + 1 < n; i += 2) {
-        update(set0, r[i], k[i]);
-        update(set1, r[i + 1], k[i + 1]);
-    }
-    if (i < n) update(set0, r[i], k[i]);
-#endif
 }
 
 // bin() over blocks of records; Two: every other record into out.odd;
@@ -743,12 +746,8 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         } else if (na == 3) {
             // The common case, unrolled: the three axes' updates are
             // independent chains.
-#if CANOPY_PACKED_COUNTS
-            const BinArrays::Axes set = out.axes();
+            auto&& set = hot(out);
             for (uint32_t i = 0; i < n; ++i) update(set, r[i], k[i]);
-#else
-            for (uint32_t i = 0; i < n; ++i) update(out, r[i], k[i]);
-#endif
         } else {
             for (uint32_t i = 0; i < n; ++i) {
                 const auto box = BinArrays::record(r[i]);
