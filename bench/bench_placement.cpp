@@ -121,7 +121,7 @@ void run_in_arena(BuildState& st, Body&& body) {
 // allocates it, timed on its own (the same for every approach).
 inline void allocate_nodes(BuildState& st, size_t total) {
     const auto t0 = Clock::now();
-    reserve_on_huge_pages(st.bvh.nodes, total);
+    st.bvh.nodes.reserve(total);
     st.bvh.nodes.resize(total);
     g_probe.alloc_ms = ms_since(t0);
 }
@@ -297,7 +297,7 @@ private:
     struct alignas(64) Worker {
         std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
         std::vector<Entry> entries;
-        std::vector<Node> nodes;  // the blocks, one after another
+        NodeArray nodes;  // the blocks, one after another
         std::vector<Block> blocks;
         SkipCounts skip;
         uint32_t id = 0;  // the trace's track and the links' worker
@@ -354,7 +354,7 @@ private:
         // The subtree of `root` as one block, laid out as Sequential does.
         Link run_block(const NodeTask& root, Worker& wk) {
             const TraceScope trace(ctx.trace, root, wk.id, TraceSpan::Inline);
-            std::vector<Node>& nodes = wk.nodes;
+            NodeArray& nodes = wk.nodes;
             const size_t first = nodes.size();
             build_depth_first(ctx, root, nodes, *wk.bins, wk.skip, wk.id);
             wk.blocks.push_back({static_cast<uint32_t>(first), static_cast<uint32_t>(nodes.size() - first)});
@@ -400,7 +400,7 @@ private:
     // The final pass: every node to its canonical slot of st.bvh.nodes
     // (sized to the node count).
     static void place(BuildState& st, std::vector<Worker>& workers, Link root) {
-        std::vector<Node>& out = st.bvh.nodes;
+        NodeArray& out = st.bvh.nodes;
 
         struct Copy {
             uint32_t worker, first, size;

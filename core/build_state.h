@@ -73,8 +73,8 @@ struct BuildState {
     // (`capacity` nodes), which the nodes fill from the front as the build
     // consumes the records (NodesBeforeRecords in core/depth_first.h).
     void allocate_records_after_nodes(size_t capacity) {
-        // bvh.nodes is empty (build_into()).
-        reserve_on_huge_pages(bvh.nodes, capacity);
+        // bvh.nodes is empty (build_into()); NodeArray advises huge pages itself.
+        bvh.nodes.reserve(capacity);
         records = NodesBeforeRecords::records_at_end(bvh.nodes.data(), bvh.nodes.capacity(), n);
     }
     // The parallel drivers' records, in the storage of the final node array

@@ -15,6 +15,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <vector>
 
 namespace canopy {
@@ -25,20 +26,20 @@ namespace canopy {
 // root), number(slot) is a slot's number and at(slot) its node. Slots stay
 // valid while the subtree grows.
 
-// The sequential driver's node array: one vector that grows by doubling, so
-// a slot is an index (relative to where the subtree starts).
+// One node array that grows by doubling (a warm build's tree, a worker's
+// scratch array), so a slot is an index (relative to where the subtree
+// starts).
 struct GrowingNodes {
-    std::vector<Node>& v;
+    NodeArray& v;
     size_t base;  // the subtree's first node
     using Slot = uint32_t;
-    explicit GrowingNodes(std::vector<Node>& nodes) : v(nodes), base(nodes.size()) {}
+    explicit GrowingNodes(NodeArray& nodes) : v(nodes), base(nodes.size()) {}
     Slot root() {
         v.emplace_back();
         return 0;
     }
     std::array<Slot, 2> pair(uint32_t /*live*/) {
         const Slot c = static_cast<Slot>(v.size() - base);
-        if (v.capacity() - v.size() < 2) grow_on_huge_pages(v);
         v.emplace_back();
         v.emplace_back();
         return {c, c + 1};
@@ -66,7 +67,7 @@ class NodesBeforeRecords {
 public:
     using Slot = uint32_t;
     // `ctx.refs` is the records' address; grow() moves them and updates it.
-    NodesBeforeRecords(std::vector<Node>& nodes, KernelContext& ctx, uint32_t n)
+    NodesBeforeRecords(NodeArray& nodes, KernelContext& ctx, uint32_t n)
         : v_(nodes), ctx_(ctx), n_(n), limit_(limit_of(nodes, ctx.refs)) {}
 
     Slot root() {
@@ -97,7 +98,7 @@ public:
 
 private:
     // The first node slot record 0 overlaps.
-    static size_t limit_of(const std::vector<Node>& v, const PrimRef* refs) {
+    static size_t limit_of(const NodeArray& v, const PrimRef* refs) {
         return size_t(reinterpret_cast<const char*>(refs) - reinterpret_cast<const char*>(v.data())) / sizeof(Node);
     }
     // Storage for the nodes so far, the live records [live, n) and the nodes
@@ -109,17 +110,21 @@ private:
         const size_t estimate = done + size_t(per_record * double(rest));
         const size_t capacity = std::max({estimate + estimate / 16 + 65, v_.capacity() + v_.capacity() / 4,
                                           done + rest + 65});
-        std::vector<Node> bigger;
-        reserve_on_huge_pages(bigger, capacity);
-        bigger.insert(bigger.end(), v_.begin(), v_.end());
-        PrimRef* const refs = records_at_end(bigger.data(), bigger.capacity(), n_);
-        std::copy(ctx_.refs + live, ctx_.refs + n_, refs + live);
-        v_.swap(bigger);
+        // expand() keeps the whole storage, records included (moved with it
+        // when it moves); the live records then go to the bigger storage's
+        // end, up, as a memmove (the two places may overlap). A mapping
+        // (from NodeArray::kMapMin bytes) grows without a second copy.
+        const size_t offset = size_t(reinterpret_cast<const char*>(ctx_.refs) -
+                                     reinterpret_cast<const char*>(v_.data()));
+        v_.expand(capacity);
+        const PrimRef* const old = reinterpret_cast<const PrimRef*>(reinterpret_cast<const char*>(v_.data()) + offset);
+        PrimRef* const refs = records_at_end(v_.data(), v_.capacity(), n_);
+        std::memmove(static_cast<void*>(refs + live), old + live, size_t(n_ - live) * sizeof(PrimRef));
         ctx_.refs = refs;
         limit_ = limit_of(v_, refs);
     }
 
-    std::vector<Node>& v_;
+    NodeArray& v_;
     KernelContext& ctx_;
     uint32_t n_;
     size_t limit_;
@@ -186,7 +191,7 @@ uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root, Out& 
 }
 
 // The same into one growing array (the sequential driver's node array).
-inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root, std::vector<Node>& nodes,
+inline uint32_t build_depth_first(const KernelContext& ctx, const NodeTask& root, NodeArray& nodes,
                                   BinSet& bins, SkipCounts& skip, uint32_t track) {
     GrowingNodes out(nodes);
     return build_depth_first(ctx, root, out, bins, skip, track);

@@ -64,17 +64,29 @@ void reserve_on_huge_pages(std::vector<T, A>& v, std::size_t n) {
     advise_huge_pages(v.data(), v.capacity() * sizeof(T));
 }
 
-// Doubles v's capacity (at least one more element) on memory advised for
-// huge pages before the elements are copied in. (std::vector's own growth
-// copies them into fresh memory at once, before any advice can be given:
-// the sequential build of 1M random triangles, whose tree outgrows its
-// reservation, then faulted 70 MB in 4 KiB pages.)
-template <class T>
-void grow_on_huge_pages(std::vector<T>& v) {
-    std::vector<T> bigger;
-    reserve_on_huge_pages(bigger, std::max<std::size_t>(2 * v.capacity(), v.size() + 1));
-    bigger.insert(bigger.end(), v.begin(), v.end());
-    v.swap(bigger);
-}
+// Page mappings of their own, for arrays that must grow without holding
+// their old and their new memory at once (NodeArray, core/node_array.h): a
+// mapping grows with mremap(), which moves its pages rather than copying
+// them, so a 60 MB node array grows to 100 MB holding 100 MB, not 160. On
+// 2 MiB and more (kHugeAllocMin) of a page-aligned mapping, huge pages are
+// advised. Each throws std::bad_alloc when the kernel refuses; the byte
+// counts are rounded up to whole pages by the callers' sizes as given
+// (map_pages() and the others take and report the same `bytes`).
+//
+// The heap probe of `canopy build --json` counts operator new; mappings
+// are not made through it, so every mapping's change in bytes is reported
+// to the observer set here (tools/alloc_probe.cpp sets one), the whole
+// mapping counted whether touched or not. The observer is called from the
+// thread that maps, without a lock; it must be thread-safe.
+using MappedBytesObserver = void (*)(std::ptrdiff_t delta);
+void set_mapped_bytes_observer(MappedBytesObserver observer) noexcept;
+// Whether this system has mappings that grow in place (Linux's mremap);
+// without it NodeArray keeps to operator new.
+bool growable_mappings_available() noexcept;
+void* map_pages(std::size_t bytes);
+// Grows or shrinks a mapping of `old_bytes` to `new_bytes`, keeping its
+// contents up to the smaller size; the mapping may move.
+void* remap_pages(void* p, std::size_t old_bytes, std::size_t new_bytes);
+void unmap_pages(void* p, std::size_t bytes) noexcept;
 
 }  // namespace canopy

@@ -63,7 +63,7 @@ public:
     // Gives every span its canonical node index (the arithmetic that
     // place_nodes() uses for task nodes, over the finished tree's leaves).
     // Called by the build.
-    void resolve(const std::vector<Node>& nodes, uint32_t primitive_count) {
+    void resolve(const NodeArray& nodes, uint32_t primitive_count) {
         LeafRank rank(primitive_count);
         for (const Node& n : nodes)
             if (n.is_leaf()) rank.mark(n.index);

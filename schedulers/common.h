@@ -76,9 +76,9 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 // one-off build holds the tree once, instead of once in the chunks and once
 // in the final array.
 inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
-    std::vector<Node>& nodes = wk.out.scratch;
+    NodeArray& nodes = wk.out.scratch;
     nodes.clear();
-    if (nodes.capacity() < size_t(root.size()) + 1) reserve_on_huge_pages(nodes, size_t(root.size()) + root.size() / 8 + 64);
+    if (nodes.capacity() < size_t(root.size()) + 1) nodes.reserve(size_t(root.size()) + root.size() / 8 + 64);
     GrowingNodes out(nodes);
     SubtreeBlock b;
     b.leaves = build_depth_first(ctx, root, out, *wk.bins, wk.skip, wk.id);

@@ -33,13 +33,13 @@ struct Sequential {
         auto bins = std::make_unique<BinSet>();
         KernelContext ctx = st.context();
         if (own_records) {
-            std::vector<Node>& nodes = st.bvh.nodes;
+            NodeArray& nodes = st.bvh.nodes;
             nodes.clear();
             // Trees of meshes have 0.97 to 1.09 nodes per primitive with
             // leaves of up to 4 (the shared scenes, the generated sphere and
             // stadium); a tree that needs more than 1.1 grows the array once
             // (1M random small triangles: 1.86).
-            reserve_on_huge_pages(nodes, NodesBeforeRecords::initial_capacity(st.n));
+            nodes.reserve(NodesBeforeRecords::initial_capacity(st.n));
             build_depth_first(ctx, st.root, nodes, *bins, st.stats.skipped, 0);
             return;
         }

@@ -20,6 +20,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstdint>
@@ -494,30 +495,96 @@ TEST(BuildShape, TenThousandCoincidentTriangles) {
     }
 }
 
-// grow_on_huge_pages() (the sequential driver's node array when a tree
-// outgrows its reservation): the elements survive, the capacity doubles.
-TEST(BuildMemory, GrowOnHugePagesKeepsTheElements) {
-    std::vector<canopy::Node> v;
-    v.reserve(3);
-    for (uint32_t i = 0; i < 3; ++i) {
-        canopy::Node n{};
-        n.min[0] = float(i);
-        n.index = i;
-        n.count = i + 1;
-        v.push_back(n);
+// NodeArray (core/node_array.h), the Bvh's node array: std::vector's
+// behaviour where it has one; expand() keeps the whole storage (a one-off
+// build's records live past size()); a mapped array grows without holding
+// its old and new pages at once.
+namespace {
+canopy::Node tagged(uint32_t i) {
+    canopy::Node n{};
+    n.min[0] = float(i);
+    n.index = i;
+    n.count = i + 1;
+    return n;
+}
+bool has_tag(const canopy::Node& n, uint32_t i) { return n.min[0] == float(i) && n.index == i && n.count == i + 1; }
+
+// Mapped bytes as the observer of core/memory.h sees them.
+std::atomic<long long> g_mapped{0}, g_mapped_peak{0};
+void observe_mapped(std::ptrdiff_t delta) {
+    const long long now = g_mapped += delta;
+    long long peak = g_mapped_peak.load();
+    while (now > peak && !g_mapped_peak.compare_exchange_weak(peak, now)) {
     }
-    canopy::grow_on_huge_pages(v);
-    ASSERT_EQ(v.size(), 3u);
-    EXPECT_GE(v.capacity(), 6u);
-    for (uint32_t i = 0; i < 3; ++i) {
-        EXPECT_EQ(v[i].min[0], float(i));
-        EXPECT_EQ(v[i].index, i);
-        EXPECT_EQ(v[i].count, i + 1);
+}
+}  // namespace
+
+TEST(BuildMemory, NodeArrayBehavesLikeAVector) {
+    for (const bool map : {false, true}) {
+        canopy::NodeArray v = map ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
+        EXPECT_TRUE(v.empty());
+        for (uint32_t i = 0; i < 5000; ++i) v.push_back(tagged(i));  // grows many times
+        ASSERT_EQ(v.size(), 5000u);
+        EXPECT_GE(v.capacity(), 5000u);
+        EXPECT_EQ(v.mapped(), map);
+        for (uint32_t i = 0; i < 5000; ++i) ASSERT_TRUE(has_tag(v[i], i)) << i;
+        const canopy::NodeArray copy = v;  // a copy holds size() nodes, on the heap
+        ASSERT_EQ(copy.size(), v.size());
+        EXPECT_FALSE(copy.mapped());
+        EXPECT_EQ(std::memcmp(copy.data(), v.data(), v.size() * sizeof(canopy::Node)), 0);
+        canopy::NodeArray moved = std::move(v);
+        EXPECT_TRUE(v.empty());
+        EXPECT_EQ(moved.size(), 5000u);
+        EXPECT_TRUE(has_tag(moved.back(), 4999));
+        moved.resize(10);
+        EXPECT_EQ(moved.size(), 10u);
+        moved.reserve(moved.capacity() + 1);  // keeps the first size() nodes
+        for (uint32_t i = 0; i < 10; ++i) ASSERT_TRUE(has_tag(moved[i], i));
+        const canopy::Node more[] = {tagged(70), tagged(71)};
+        moved.append(more, more + 2);
+        EXPECT_TRUE(has_tag(moved[11], 71));
+        moved.clear();
+        EXPECT_TRUE(moved.empty());
     }
-    std::vector<canopy::Node> empty;
-    canopy::grow_on_huge_pages(empty);
-    EXPECT_TRUE(empty.empty());
-    EXPECT_GE(empty.capacity(), 1u);
+    canopy::NodeArray list = {tagged(1), tagged(2)};
+    EXPECT_EQ(list.size(), 2u);
+    EXPECT_TRUE(has_tag(list[1], 2));
+}
+
+TEST(BuildMemory, NodeArrayExpandKeepsTheWholeStorage) {
+    for (const bool map : {false, true}) {
+        canopy::NodeArray v = map ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
+        v.reserve(3000);
+        const size_t cap = v.capacity();
+        v.resize(10);
+        // Past size(): what a one-off build keeps there (its records).
+        for (uint32_t i = 0; i < cap; ++i) v.data()[i] = tagged(i);
+        v.expand(5 * cap);
+        EXPECT_GE(v.capacity(), 5 * cap);
+        EXPECT_EQ(v.size(), 10u);
+        for (uint32_t i = 0; i < cap; ++i) ASSERT_TRUE(has_tag(v.data()[i], i)) << i << (map ? " mapped" : " heap");
+    }
+}
+
+TEST(BuildMemory, MappedNodeArrayGrowsWithoutASecondCopy) {
+    if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
+    canopy::set_mapped_bytes_observer(observe_mapped);
+    {
+        canopy::NodeArray v(canopy::NodeArray::MapFrom{0});
+        v.reserve(size_t(1) << 16);  // 2 MiB
+        const long long small = g_mapped.load();
+        EXPECT_GE(small, (1ll << 16) * 32);
+        g_mapped_peak = small;
+        v.data()[(size_t(1) << 16) - 1] = tagged(9);
+        v.expand(size_t(1) << 18);  // 8 MiB
+        const long long big = g_mapped.load();
+        EXPECT_GE(big, (1ll << 18) * 32);
+        // The high-water mark is the new size, not old + new.
+        EXPECT_EQ(g_mapped_peak.load(), big);
+        EXPECT_TRUE(has_tag(v.data()[(size_t(1) << 16) - 1], 9));
+    }
+    EXPECT_EQ(g_mapped.load(), 0);  // unmapped when the array goes
+    canopy::set_mapped_bytes_observer(nullptr);
 }
 
 // A tree of more nodes than the sequential driver reserves (1.1 per
@@ -574,8 +641,8 @@ TEST(BuildMemory, RecordsAtTheEndOfTheNodeArray) {
 // ctx.refs follows the records.
 TEST(BuildMemory, NodesBeforeRecordsGrowsKeepingNodesAndLiveRecords) {
     const uint32_t n = 1000;
-    std::vector<Node> v;
-    canopy::reserve_on_huge_pages(v, canopy::NodesBeforeRecords::initial_capacity(n));
+    canopy::NodeArray v;
+    v.reserve(canopy::NodesBeforeRecords::initial_capacity(n));
     canopy::KernelContext ctx{canopy::NodesBeforeRecords::records_at_end(v.data(), v.capacity(), n), nullptr,
                               nullptr, nullptr};
     ASSERT_EQ(reinterpret_cast<std::uintptr_t>(ctx.refs) % 32, 0u);
@@ -714,19 +781,19 @@ struct ReverseForEach {
 };
 
 // Places arenas that hold records only (every node run as a task).
-std::vector<Node> place(const std::vector<std::vector<NodeRecord>>& records) {
+canopy::NodeArray place(const std::vector<std::vector<NodeRecord>>& records) {
     std::vector<canopy::PlacementArena> arenas(records.size());
     std::vector<const canopy::PlacementArena*> views;
     for (size_t i = 0; i < records.size(); ++i) {
         arenas[i].records = records[i];
         views.push_back(&arenas[i]);
     }
-    std::vector<Node> nodes;
+    canopy::NodeArray nodes;
     canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nullptr, nodes, ReverseForEach{});
     return nodes;
 }
 
-bool same_nodes(const std::vector<Node>& a, const std::vector<Node>& b) {
+bool same_nodes(const canopy::NodeArray& a, const canopy::NodeArray& b) {
     return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(Node)) == 0;
 }
 
@@ -755,7 +822,7 @@ TEST(BuildLayout, PlaceRecordsReproducesTheSequentialTree) {
         ASSERT_EQ(recs.size(), b.nodes.size());
         for (uint32_t seed = 0; seed < 3; ++seed) {
             const auto arenas = scatter(recs, 3, seed);
-            const std::vector<Node> nodes = place(arenas);
+            const canopy::NodeArray nodes = place(arenas);
             EXPECT_TRUE(same_nodes(nodes, b.nodes))
                 << "n=" << c.mesh.triangle_count() << " seed " << seed;
         }
@@ -859,7 +926,7 @@ TEST(BuildLayout, KernelTasksInRandomOrderPlaceLikeSequential) {
             arenas[rng() % 3].push_back(NodeRecord::of(t, !split));
             if (split) pending.insert(pending.end(), {children[0], children[1]});
         }
-        const std::vector<Node> nodes = place(arenas);
+        const canopy::NodeArray nodes = place(arenas);
         EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << n;
         EXPECT_EQ(perm, expected.permutation) << "n=" << n;
     }
@@ -940,7 +1007,7 @@ TEST(BuildLayout, SubtreeBlocksPlaceLikeSequential) {
             }
             for (auto& a : arenas) std::shuffle(a.records.begin(), a.records.end(), rng);
             std::vector<const canopy::PlacementArena*> views{&arenas[0], &arenas[1], &arenas[2]};
-            std::vector<Node> nodes;
+            canopy::NodeArray nodes;
             canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nullptr, nodes, ReverseForEach{});
             EXPECT_TRUE(same_nodes(nodes, b.nodes)) << "n=" << m.triangle_count() << " seed " << seed;
             total_blocks += blocks;
@@ -992,7 +1059,7 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
                 EXPECT_GT(arena.chunks.size(), 2u) << "chunk " << chunk;
             }
             const canopy::PlacementArena* views[] = {&arena};
-            std::vector<Node> nodes;
+            canopy::NodeArray nodes;
             canopy::place_nodes(std::span<const canopy::PlacementArena* const>(views), nullptr, nodes, ReverseForEach{});
             EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << in.refs.size() << " chunk " << chunk;
             EXPECT_EQ(in.perm, expected.permutation) << "n=" << in.refs.size() << " chunk " << chunk;
@@ -1020,8 +1087,8 @@ TEST(BuildLayout, InPlaceMovesSplitOverWorkersInAnyOrder) {
         const BuildOptions opt;
         const Bvh expected = build(m, opt);
         const uint32_t n = uint32_t(m.triangle_count());
-        std::vector<Node> nodes;
-        canopy::reserve_on_huge_pages(nodes, canopy::NodesBeforeRecords::initial_capacity(n));
+        canopy::NodeArray nodes;
+        nodes.reserve(canopy::NodesBeforeRecords::initial_capacity(n));
         const size_t storage = nodes.capacity();
         canopy::PrimRef* refs = canopy::NodesBeforeRecords::records_at_end(nodes.data(), storage, n);
         const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs);

@@ -12,6 +12,8 @@
 // kept in a small table until they are released.
 #include "alloc_probe.h"
 
+#include "core/memory.h"
+
 #include <malloc.h>
 
 #include <array>
@@ -103,11 +105,21 @@ void release_aligned(void* p, size_t align) noexcept {
     std::free(p);
 }
 
+// Page mappings the library makes itself (core/memory.h: a big node
+// array), counted like heap blocks, whole, touched or not.
+void note_mapped(std::ptrdiff_t delta) {
+    if (delta >= 0)
+        note_alloc(size_t(delta));
+    else
+        g_held.fetch_sub(size_t(-delta), std::memory_order_relaxed);
+}
+
 }  // namespace
 
 namespace canopy::alloc_probe {
 
 void start() {
+    canopy::set_mapped_bytes_observer(note_mapped);
     const size_t held = g_held.load(std::memory_order_relaxed);
     g_base.store(held, std::memory_order_relaxed);
     g_peak.store(held, std::memory_order_relaxed);

@@ -1,7 +1,8 @@
 // canopy tool: a heap high-water mark for `canopy build --json`
 // ("peak_bytes"). The tool replaces the global operator new / delete
 // (alloc_probe.cpp) to count the bytes the C++ heap holds; the library
-// allocates only through them. Memory that threading runtimes take with
+// allocates through them, and reports the page mappings it makes itself
+// (a big node array, core/memory.h) to an observer the probe sets. Memory that threading runtimes take with
 // malloc directly (thread stacks, pool structures) is not counted.
 #pragma once
 
