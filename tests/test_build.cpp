@@ -779,6 +779,12 @@ struct ReverseForEach {
         for (size_t i = k; i-- > 0;) fn(i);
     }
 };
+struct ForwardForEach {
+    template <class Fn>
+    void operator()(size_t k, Fn&& fn) const {
+        for (size_t i = 0; i < k; ++i) fn(i);
+    }
+};
 
 // Places arenas that hold records only (every node run as a task).
 canopy::NodeArray place(const std::vector<std::vector<NodeRecord>>& records) {
@@ -1077,56 +1083,79 @@ TEST(BuildLayout, InPlaceMovesSplitOverWorkersInAnyOrder) {
     // it moves the rest, or it overwrites blocks that have not moved. The
     // sphere's blocks fit over their records; with the random triangles
     // some have more nodes than records and go on in the workers' chunks.
+    // A tree of random triangles alone does not fit (1.86 nodes per record):
+    // the storage grows (a mapping or heap memory), the blocks whose slots
+    // start after their records move up, last first, each over its own
+    // records in part (move_shifted), and then the others move down in
+    // runs as above, in both orders of the runs.
     TriangleMesh mixed = canopy::generate("sphere", 20000, 1);
     const TriangleMesh extra = canopy::generate("random", 1500, 3);
     const uint32_t shift = uint32_t(mixed.vertices.size());
     mixed.vertices.insert(mixed.vertices.end(), extra.vertices.begin(), extra.vertices.end());
     for (uint32_t i : extra.indices) mixed.indices.push_back(i + shift);
-    const TriangleMesh meshes[] = {canopy::generate("sphere", 20000, 1), mixed};
-    for (const TriangleMesh& m : meshes) {
-        const BuildOptions opt;
-        const Bvh expected = build(m, opt);
-        const uint32_t n = uint32_t(m.triangle_count());
-        canopy::NodeArray nodes;
-        nodes.reserve(canopy::NodesBeforeRecords::initial_capacity(n));
-        const size_t storage = nodes.capacity();
-        canopy::PrimRef* refs = canopy::NodesBeforeRecords::records_at_end(nodes.data(), storage, n);
-        const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs);
-        ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
-        canopy::NodeTask root;
-        root.begin = 0;
-        root.end = n;
-        root.bounds = s.bounds;
-        root.cbounds = s.cbounds;
-        root.max_area = s.max_area;
-        std::vector<uint32_t> perm(n, ~0u);
-        const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
-        canopy::Workers workers(3, n);
-        workers.reset(3, n, 24, true);
-        std::vector<canopy::NodeTask> pending{root};
-        uint32_t turn = 0, subtrees = 0;
-        while (!pending.empty()) {
-            const canopy::NodeTask t = pending.back();
-            pending.pop_back();
-            canopy::Worker& wk = workers[turn++ % 3];
-            if (t.size() < 600) {
-                canopy::sched::run_subtree_over_records(ctx, t, wk);
-                ++subtrees;
-                continue;
+    struct Case {
+        const char* name;
+        TriangleMesh mesh;
+        bool grows, mapped;
+    };
+    const Case cases[] = {{"sphere", canopy::generate("sphere", 20000, 1), false, false},
+                          {"sphere + random", mixed, false, false},
+                          {"random", canopy::generate("random", 20000, 7), true, false},
+                          {"random, mapped", canopy::generate("random", 20000, 7), true, true}};
+    for (const Case& c : cases)
+        for (const bool forward : {false, true}) {
+            const std::string what = std::string(c.name) + (forward ? ", runs first to last" : ", runs last to first");
+            const TriangleMesh& m = c.mesh;
+            const BuildOptions opt;
+            const Bvh expected = build(m, opt);
+            const uint32_t n = uint32_t(m.triangle_count());
+            canopy::NodeArray nodes = c.mapped ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
+            nodes.reserve(canopy::NodesBeforeRecords::initial_capacity(n));
+            const size_t storage = nodes.capacity();
+            canopy::PrimRef* refs = canopy::NodesBeforeRecords::records_at_end(nodes.data(), storage, n);
+            const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs);
+            ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
+            canopy::NodeTask root;
+            root.begin = 0;
+            root.end = n;
+            root.bounds = s.bounds;
+            root.cbounds = s.cbounds;
+            root.max_area = s.max_area;
+            std::vector<uint32_t> perm(n, ~0u);
+            const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
+            canopy::Workers workers(3, n);
+            workers.reset(3, n, 24, true);
+            std::vector<canopy::NodeTask> pending{root};
+            uint32_t turn = 0, subtrees = 0;
+            while (!pending.empty()) {
+                const canopy::NodeTask t = pending.back();
+                pending.pop_back();
+                canopy::Worker& wk = workers[turn++ % 3];
+                if (t.size() < 600) {
+                    canopy::sched::run_subtree_over_records(ctx, t, wk);
+                    ++subtrees;
+                    continue;
+                }
+                canopy::NodeTask children[2];
+                const bool split = canopy::run_node(ctx, t, children, *wk.bins, wk.skip);
+                wk.out.records.push_back(NodeRecord::of(t, !split));
+                if (split) pending.insert(pending.end(), {children[0], children[1]});
             }
-            canopy::NodeTask children[2];
-            const bool split = canopy::run_node(ctx, t, children, *wk.bins, wk.skip);
-            wk.out.records.push_back(NodeRecord::of(t, !split));
-            if (split) pending.insert(pending.end(), {children[0], children[1]});
+            ASSERT_GT(subtrees, 30u);
+            const canopy::PlacementArena* views[] = {&workers[0].out, &workers[1].out, &workers[2].out};
+            const std::span<const canopy::PlacementArena* const> arenas(views);
+            if (forward)
+                canopy::place_over_records(arenas, refs, nodes, ForwardForEach{}, 0);
+            else
+                canopy::place_over_records(arenas, refs, nodes, ReverseForEach{}, 0);
+            EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << what;
+            EXPECT_EQ(perm, expected.permutation) << what;
+            if (c.grows)
+                EXPECT_GT(nodes.capacity(), storage) << what << ": the storage grew";
+            else
+                EXPECT_EQ(nodes.capacity(), storage) << what << ": placed in the records' storage";
+            EXPECT_EQ(nodes.mapped(), c.mapped) << what;
         }
-        ASSERT_GT(subtrees, 30u);
-        const canopy::PlacementArena* views[] = {&workers[0].out, &workers[1].out, &workers[2].out};
-        canopy::place_over_records(std::span<const canopy::PlacementArena* const>(views), refs, nodes,
-                                   ReverseForEach{}, 0);
-        EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << "n=" << n;
-        EXPECT_EQ(perm, expected.permutation) << "n=" << n;
-        EXPECT_EQ(nodes.capacity(), storage) << "n=" << n << ": placed in the records' storage";
-    }
 }
 
 TEST(BuildLayout, FirstChildSlotFormula) {
