@@ -501,9 +501,11 @@ void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* ou
 // records, 0.86 nodes per record at the top of a random scene's tree. Run
 // on two threads that way, the placement of a 2-thread build of 4M random
 // triangles took 157 to 185 ms against 49 to 54 on one.)
-inline void move_blocks_up(std::span<const BlockMove> moves, const PrimRef* refs, Node* out) {
+// `up(move)` picks those blocks out of `moves`.
+template <class Up>
+void move_blocks_up(std::span<const BlockMove> moves, const PrimRef* refs, Node* out, Up&& up) {
     for (size_t k = moves.size(); k-- > 0;)
-        place_block_body(*moves[k].arena, *moves[k].block, refs, moves[k].c, out + moves[k].c);
+        if (up(moves[k])) place_block_body(*moves[k].arena, *moves[k].block, refs, moves[k].c, out + moves[k].c);
 }
 
 // Places over_records arenas into `nodes`, whose storage (its capacity; the
@@ -521,11 +523,11 @@ inline void move_blocks_up(std::span<const BlockMove> moves, const PrimRef* refs
 // its size instead (NodeArray::expand(), which keeps the records and the
 // blocks over them at their offsets; a mapping, from NodeArray::kMapMin
 // bytes, grows without a second copy), and the blocks move in two steps:
-// first those whose slots start after their records, on one thread
-// (move_blocks_up(): each moves up past the records of every block before
-// it, and ends below the slots, hence below the records, of every block
-// after it), then the others as above (move_blocks(), split over the
-// workers). (Until 2026-12-05 such a tree went
+// first those whose slots start after their records (move_blocks_up():
+// each moves up past the records of every block before it, and ends below
+// the slots, hence below the records, of every block after it), then the
+// others in order as above, all on one thread; the workers only touch the
+// storage's new pages first. (Until 2026-12-05 such a tree went
 // into a fresh array beside the storage: 127 bytes per triangle at the
 // peak of a 2-thread build of 1M random triangles.)
 template <class ForEach>
@@ -566,10 +568,15 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
                 for (size_t i = bytes * r / groups / 4096 * 4096; i < bytes * (r + 1) / groups; i += 4096) fresh[i] = 0;
             });
         }
-        std::vector<BlockMove> up, down;
-        for (const BlockMove& m : moves) (at(base + m.c) > at(refs + m.block->root.begin) ? up : down).push_back(m);
-        move_blocks_up(up, refs, base);
-        move_blocks(down, refs, base, groups, for_each);
+        const auto up = [&](const BlockMove& m) { return at(base + m.c) > at(refs + m.block->root.begin); };
+        move_blocks_up(moves, refs, base, up);
+        // The others, still in the order of their ranges (no second list
+        // while the storage and the chunks are both held: the peak).
+        // On one thread too: split into runs, the buffers of the blocks
+        // copied aside would add to the peak (1.6 bytes per triangle on
+        // 1.1M random triangles).
+        moves.erase(std::remove_if(moves.begin(), moves.end(), up), moves.end());
+        move_blocks(moves, refs, base, 1, for_each);
     }
     Node* const out = nodes.data();
     for_each(arenas.size(), [&](size_t i) {

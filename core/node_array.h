@@ -8,9 +8,10 @@
 // std::vector could only copy into a second, bigger array: the old storage
 // and the new one held at once, 102 bytes per triangle at the peak of a
 // sequential build of 1M random triangles. From kMapMin bytes on, a
-// NodeArray lives in a page mapping of its own (core/memory.h), which
-// mremap() grows by moving pages, not bytes; expand() keeps everything in
-// the storage, the records past size() included.
+// NodeArray lives in a page mapping of its own (core/memory.h), which grows
+// in place within a reservation of twice its size, or moves its pages (not
+// bytes) to a bigger one; expand() keeps everything in the storage, the
+// records past size() included.
 //
 // The interface is std::vector's where it has one (size, data, reserve,
 // resize, emplace_back, ...). Differences: resize() leaves new nodes
@@ -18,6 +19,7 @@
 // pointers, and expand() is new.
 #pragma once
 
+#include "memory.h"
 #include "node.h"
 
 #include <algorithm>
@@ -66,7 +68,7 @@ public:
     std::size_t capacity() const noexcept { return capacity_; }
     bool empty() const noexcept { return size_ == 0; }
     // Whether the storage is a page mapping (see kMapMin).
-    bool mapped() const noexcept { return mapped_; }
+    bool mapped() const noexcept { return mapping_.p != nullptr; }
 
     Node* data() noexcept { return data_; }
     const Node* data() const noexcept { return data_; }
@@ -117,7 +119,7 @@ public:
         std::swap(data_, o.data_);
         std::swap(size_, o.size_);
         std::swap(capacity_, o.capacity_);
-        std::swap(mapped_, o.mapped_);
+        std::swap(mapping_, o.mapping_);
         std::swap(map_min_, o.map_min_);
     }
 
@@ -129,7 +131,7 @@ private:
     Node* data_ = nullptr;
     std::size_t size_ = 0;
     std::size_t capacity_ = 0;
-    bool mapped_ = false;
+    PageMapping mapping_;  // p == data_ when the storage is a mapping
     std::size_t map_min_ = kMapMin;
 };
 

@@ -571,17 +571,25 @@ TEST(BuildMemory, MappedNodeArrayGrowsWithoutASecondCopy) {
     canopy::set_mapped_bytes_observer(observe_mapped);
     {
         canopy::NodeArray v(canopy::NodeArray::MapFrom{0});
-        v.reserve(size_t(1) << 16);  // 2 MiB
+        v.reserve(size_t(1) << 16);  // 2 MiB, in a reservation of 4
         const long long small = g_mapped.load();
         EXPECT_GE(small, (1ll << 16) * 32);
         g_mapped_peak = small;
-        v.data()[(size_t(1) << 16) - 1] = tagged(9);
-        v.expand(size_t(1) << 18);  // 8 MiB
-        const long long big = g_mapped.load();
-        EXPECT_GE(big, (1ll << 18) * 32);
-        // The high-water mark is the new size, not old + new.
-        EXPECT_EQ(g_mapped_peak.load(), big);
-        EXPECT_TRUE(has_tag(v.data()[(size_t(1) << 16) - 1], 9));
+        // Every page written, so that a copy would have something to copy.
+        for (size_t i = 0; i < v.capacity(); ++i) v.data()[i] = tagged(uint32_t(i));
+        const canopy::Node* before = v.data();
+        v.expand(size_t(3) << 15);  // 3 MiB: within the reservation, in place
+        EXPECT_EQ(v.data(), before);
+        for (const size_t nodes : {size_t(1) << 18, size_t(1) << 20}) {  // 8 and 32 MiB: moved, twice
+            v.expand(nodes);
+            const long long now = g_mapped.load();
+            EXPECT_GE(now, (long long)(nodes * 32));
+            // The high-water mark is the new size, not old + new.
+            EXPECT_EQ(g_mapped_peak.load(), now) << nodes;
+            EXPECT_EQ(reinterpret_cast<std::uintptr_t>(v.data()) % (size_t(2) << 20), 0u) << "on a 2 MiB boundary";
+            for (size_t i = 0; i < (size_t(1) << 16); ++i) ASSERT_TRUE(has_tag(v.data()[i], uint32_t(i))) << i;
+            v.data()[v.capacity() - 1] = tagged(5);  // the new part is writable
+        }
     }
     EXPECT_EQ(g_mapped.load(), 0);  // unmapped when the array goes
     canopy::set_mapped_bytes_observer(nullptr);
@@ -1087,7 +1095,7 @@ TEST(BuildLayout, InPlaceMovesSplitOverWorkersInAnyOrder) {
     // the storage grows (a mapping or heap memory), the blocks whose slots
     // start after their records move up, last first, each over its own
     // records in part (move_shifted), and then the others move down in
-    // runs as above, in both orders of the runs.
+    // order, all on one thread.
     TriangleMesh mixed = canopy::generate("sphere", 20000, 1);
     const TriangleMesh extra = canopy::generate("random", 1500, 3);
     const uint32_t shift = uint32_t(mixed.vertices.size());
