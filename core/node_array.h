@@ -104,11 +104,19 @@ public:
         if (size_ == capacity_) reallocate(std::max<std::size_t>(2 * capacity_, 1), size_);
         return data_[size_++];
     }
-    void push_back(const Node& v) { emplace_back() = v; }
-    // Appends [first, last), which must not lie in this array.
+    // `v` may be one of this array's nodes (copied before the array grows).
+    void push_back(const Node& v) {
+        const Node copy = v;
+        emplace_back() = copy;
+    }
+    // Appends [first, last), which may lie in this array's first size()
+    // nodes (found again after the array grows).
     void append(const Node* first, const Node* last) {
         const std::size_t k = std::size_t(last - first), at = size_;
+        const bool own = k && first >= data_ && first < data_ + size_;
+        const std::size_t from = own ? std::size_t(first - data_) : 0;
         resize(size_ + k);
+        if (own) first = data_ + from;
         if (k) std::memcpy(static_cast<void*>(data_ + at), first, k * sizeof(Node));
     }
     void assign(const Node* first, const Node* last) {

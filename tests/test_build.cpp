@@ -549,6 +549,12 @@ TEST(BuildMemory, NodeArrayBehavesLikeAVector) {
     canopy::NodeArray list = {tagged(1), tagged(2)};
     EXPECT_EQ(list.size(), 2u);
     EXPECT_TRUE(has_tag(list[1], 2));
+    // Its own nodes, appended while it grows (ASan saw push_back read a
+    // node the growth had freed).
+    for (uint32_t i = 0; i < 10; ++i) list.push_back(list[i % 2]);
+    list.append(list.begin(), list.end());
+    ASSERT_EQ(list.size(), 24u);
+    for (uint32_t i = 0; i < 24; ++i) EXPECT_TRUE(has_tag(list[i], 1 + i % 2)) << i;
 }
 
 TEST(BuildMemory, NodeArrayExpandKeepsTheWholeStorage) {
