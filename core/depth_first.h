@@ -114,10 +114,7 @@ private:
         // when it moves); the live records then go to the bigger storage's
         // end, up, as a memmove (the two places may overlap). A mapping
         // (from NodeArray::kMapMin bytes) grows without a second copy.
-        const size_t offset = size_t(reinterpret_cast<const char*>(ctx_.refs) -
-                                     reinterpret_cast<const char*>(v_.data()));
-        v_.expand(capacity);
-        const PrimRef* const old = reinterpret_cast<const PrimRef*>(reinterpret_cast<const char*>(v_.data()) + offset);
+        const PrimRef* const old = v_.expand(capacity, ctx_.refs);
         PrimRef* const refs = records_at_end(v_.data(), v_.capacity(), n_);
         std::memmove(static_cast<void*>(refs + live), old + live, size_t(n_ - live) * sizeof(PrimRef));
         ctx_.refs = refs;

@@ -552,9 +552,8 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
         nodes.resize(total);
         move_blocks(moves, refs, nodes.data(), total >= parallel_min ? arenas.size() : 1, for_each);
     } else {
-        const size_t offset = at(refs) - at(nodes.data()), old_capacity = nodes.capacity();
-        nodes.expand(total);
-        refs = reinterpret_cast<const PrimRef*>(reinterpret_cast<const char*>(nodes.data()) + offset);
+        const size_t old_capacity = nodes.capacity();
+        refs = nodes.expand(total, refs);
         nodes.resize(total);
         Node* const base = nodes.data();
         // The storage's new part is fresh memory, faulted in as it is first

@@ -42,8 +42,8 @@ inline constexpr std::size_t kHugeAllocMin = std::size_t(2) << 20;
 void* allocate_huge(std::size_t bytes);
 void release_huge(void* p, std::size_t bytes) noexcept;
 
-// A standard allocator over allocate_huge() (the finished Bvh's vectors use
-// std::allocator).
+// A standard allocator over allocate_huge() (the finished Bvh's permutation
+// uses std::allocator, its node array a NodeArray, core/node_array.h).
 template <class T>
 struct HugePageAllocator {
     using value_type = T;

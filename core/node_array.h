@@ -95,6 +95,14 @@ public:
     void expand(std::size_t n) {
         if (n > capacity_) reallocate(n, capacity_);
     }
+    // expand(n), and where `inside`, an address in the storage (a record
+    // past the nodes), is afterwards.
+    template <class T>
+    T* expand(std::size_t n, T* inside) {
+        const std::size_t offset = std::size_t(reinterpret_cast<const char*>(inside) - reinterpret_cast<const char*>(data_));
+        expand(n);
+        return reinterpret_cast<T*>(reinterpret_cast<char*>(data_) + offset);
+    }
     // New nodes are not initialised.
     void resize(std::size_t n) {
         if (n > capacity_) reallocate(std::max(n, 2 * capacity_), size_);
