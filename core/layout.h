@@ -36,6 +36,7 @@
 #include "bvh.h"
 #include "kernel.h"
 #include "memory.h"
+#include "overflow_area.h"
 
 #include <algorithm>
 #include <array>
@@ -44,6 +45,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <immintrin.h>
 #include <span>
 #include <utility>
@@ -117,7 +119,10 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
 //    node array's storage): block nodes 1 to `over_records` written over the
 //    records [root.begin, root.begin + over_records), which the subtree no
 //    longer needs once it is built, and the nodes after them, when the block
-//    has more nodes than records, in the chunks from (chunk, first) as above.
+//    has more nodes than records, in the overflow area from
+//    (*overflow)[root.begin] on, or, when they are fewer than a page of it
+//    (PlacementArena::kSpillMax), in the arena's spill from spill[first]
+//    on (`spilled`).
 //    Block node 0, the subtree's root, is not stored: `root` describes it
 //    (an inner root's first child is block node 1).
 struct SubtreeBlock {
@@ -127,6 +132,7 @@ struct SubtreeBlock {
     uint32_t size = 0;
     uint32_t leaves = 0;
     uint32_t over_records = 0;
+    bool spilled = false;  // over_records: the nodes past them in the arena's spill, from spill[first]
 };
 
 // A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
@@ -154,6 +160,16 @@ struct PlacementArena {
     std::vector<NodeChunk> spare;           // emptied chunks of earlier builds
     bool over_records = false;              // blocks are kept over their records (SubtreeBlock)
     NodeArray scratch;                      // one block's nodes while it is built (over_records)
+    // over_records: the nodes of blocks that have more nodes than records,
+    // past the first `over_records`, at the block's range (shared by every
+    // worker's arena).
+    OverflowArea* overflow = nullptr;
+    // over_records: the nodes past the records of blocks that have fewer
+    // than kSpillMax of them, block after block. Each such block would
+    // bring in a 4 KiB page of the overflow area of its own (a mesh's tree
+    // has a few hundred such blocks); here they share pages.
+    static constexpr uint32_t kSpillMax = 1024;
+    std::vector<Node> spill;
 
     // The chunk a new block starts in: the last one (ChunkedNodes moves on
     // when it is full).
@@ -200,6 +216,7 @@ struct PlacementArena {
             spare.push_back(std::move(c));
         }
         chunks.clear();
+        spill.clear();
         // Largest last, the one new_chunk() looks at.
         std::sort(spare.begin(), spare.end(),
                   [](const NodeChunk& a, const NodeChunk& b) { return a.capacity() < b.capacity(); });
@@ -372,7 +389,7 @@ inline void place_block_body(const PlacementArena& a, const SubtreeBlock& b, con
         move_shifted(reinterpret_cast<const Node*>(refs + b.root.begin), b.over_records, c - 1, dst);
         dst += b.over_records;
         body -= b.over_records;
-        if (body) copy_from_chunks(a, b.chunk, b.first, body, c - 1, dst);
+        if (body) copy_shifted(b.spilled ? a.spill.data() + b.first : a.overflow->data() + b.root.begin, body, c - 1, dst);
     } else {
         // The root is the chunks' node (b.chunk, b.first); the body follows.
         copy_from_chunks(a, b.chunk, b.first + 1, body, c - 1, dst);
@@ -440,14 +457,10 @@ struct BlockMove {
 // and so below that run's records. The buffers hold about the gap between
 // the slots and the records at each run's start: at most the storage's
 // slack (a tenth of a node per record).
-template <class ForEach>
-void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* out, size_t groups,
-                 ForEach&& for_each) {
-    groups = std::clamp<size_t>(groups, 1, std::max<size_t>(moves.size(), 1));
-    if (groups == 1) {
-        for (const BlockMove& m : moves) place_block_body(*m.arena, *m.block, refs, m.c, out + m.c);
-        return;
-    }
+// Cuts `moves` (in the order of their ranges) into `groups` runs of
+// consecutive blocks with about equal numbers of nodes: run r is
+// [first[r], first[r + 1]).
+inline std::vector<size_t> cut_runs(std::span<const BlockMove> moves, size_t groups) {
     size_t body = 0;
     for (const BlockMove& m : moves) body += m.block->size - 1;
     std::vector<size_t> first(groups + 1, moves.size());
@@ -457,6 +470,18 @@ void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* ou
         while (g < groups && done >= body * g / groups) first[g++] = k;
         done += moves[k].block->size - 1;
     }
+    return first;
+}
+
+template <class ForEach>
+void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* out, size_t groups,
+                 ForEach&& for_each) {
+    groups = std::clamp<size_t>(groups, 1, std::max<size_t>(moves.size(), 1));
+    if (groups == 1) {
+        for (const BlockMove& m : moves) place_block_body(*m.arena, *m.block, refs, m.c, out + m.c);
+        return;
+    }
+    const std::vector<size_t> first = cut_runs(moves, groups);
     const auto at = [](const void* p) { return reinterpret_cast<std::uintptr_t>(p); };
     std::vector<std::vector<Node>> buffer(groups);
     std::vector<size_t> buffered_end(groups);
@@ -492,20 +517,75 @@ void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* ou
     });
 }
 
-// The same for blocks whose slots start after their records (a tree with
-// more nodes than records: place_over_records()), on one thread: the last
-// block first, each moving up past the records of the blocks before it.
-// (Split into runs like move_blocks(), each run would first have to copy
-// aside its blocks whose slots lie over the next run's records: the gap
-// between slots and records grows to the tree's excess of nodes over
-// records, 0.86 nodes per record at the top of a random scene's tree. Run
-// on two threads that way, the placement of a 2-thread build of 4M random
-// triangles took 157 to 185 ms against 49 to 54 on one.)
-// `up(move)` picks those blocks out of `moves`.
-template <class Up>
-void move_blocks_up(std::span<const BlockMove> moves, const PrimRef* refs, Node* out, Up&& up) {
-    for (size_t k = moves.size(); k-- > 0;)
-        if (up(moves[k])) place_block_body(*moves[k].arena, *moves[k].block, refs, moves[k].c, out + moves[k].c);
+// The step in which place_beside_records() gives back the pages it has
+// consumed (of the records' storage and the overflow area): one system call
+// per 256 KiB consumed. The new array's pages are counted in units of 2 MiB,
+// a huge page, which a first write brings in whole.
+inline constexpr size_t kDiscardUnit = size_t(256) << 10;
+inline constexpr size_t kTouchUnit = size_t(2) << 20;
+inline constexpr size_t kHugeMin = size_t(56) << 20;
+
+// Places a tree that does not fit over its records (place_over_records())
+// into a new array of `total` nodes beside the records' storage `nodes`,
+// without holding both whole: the blocks are copied in the order of their
+// ranges, split into one run per worker (cut as move_blocks() cuts them,
+// but into memory of their own, so that the runs never wait for each
+// other), and each run gives back to the system the pages of the records'
+// storage and of the overflow area (which holds each block's nodes at its
+// range too) below the next block's range, as it goes, while the new
+// array's pages are counted as they are first written (PageLedger). With
+// 1.86 nodes per record the new array grows by about as many bytes as the
+// storage and the overflow area give back, so the peak stays near that of
+// the end of the build (the storage and the overflow area). Returns the
+// new array (the caller swaps it in). `area`: the arenas' overflow area.
+template <class ForEach>
+NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* refs, OverflowArea& area,
+                               NodeArray& nodes, size_t total, size_t groups, ForEach&& for_each) {
+    groups = std::clamp<size_t>(groups, 1, std::max<size_t>(moves.size(), 1));
+    const std::vector<size_t> first = cut_runs(moves, groups);
+    // On huge pages from kHugeMin bytes: each run has one huge page in
+    // writing at a time, counted whole (up to 2 MiB a run more than it has
+    // written); smaller arrays, for which that would be a sizeable part,
+    // fault in 4 KiB pages (and count them), about five times as slow per
+    // byte (a 64 MiB mapping touched in 12.4 ms against 2.6, 2026-12-05).
+    const bool huge = total * sizeof(Node) >= kHugeMin;
+    NodeArray out(NodeArray::Uncounted{huge}, total);
+    PageLedger touched(out.capacity() * sizeof(Node), huge ? kTouchUnit : 4096, out.mapped());
+    // Steps of kDiscardUnit, smaller for small trees (each run may hold up
+    // to a step of the storage and of the area that it has consumed).
+    const size_t step = std::clamp<size_t>(total / 128, 4096 / sizeof(PrimRef), kDiscardUnit / sizeof(PrimRef));
+    for_each(groups, [&](size_t r) {
+        if (first[r] == first[r + 1]) return;
+        // This run's records are given back in steps, from the first page
+        // boundary in them to the last below what is consumed (the pages it
+        // shares with its neighbours go with the storage and the area).
+        constexpr size_t kPageNodes = 4096 / sizeof(Node);
+        const size_t start = r == 0 ? 0 : moves[first[r]].block->root.begin;
+        const auto page_up = [](std::uintptr_t a) { return (a + 4095) & ~std::uintptr_t(4095); };
+        std::uintptr_t storage_done = page_up(reinterpret_cast<std::uintptr_t>(refs + start));
+        size_t area_done = (start + kPageNodes - 1) / kPageNodes * kPageNodes, released = start;
+        for (size_t k = first[r]; k < first[r + 1]; ++k) {
+            const BlockMove& m = moves[k];
+            const SubtreeBlock& b = *m.block;
+            touched.touch(size_t(m.c) * sizeof(Node), (size_t(m.c) + b.size - 1) * sizeof(Node));
+            place_block_body(*m.arena, b, refs, m.c, out.data() + m.c);
+            // Every record before the next block's is consumed.
+            const size_t consumed = k + 1 < moves.size() ? moves[k + 1].block->root.begin
+                                                         : size_t(b.root.begin) + b.over_records;
+            if (consumed >= released + step || k + 1 == first[r + 1]) {
+                const std::uintptr_t storage_to = reinterpret_cast<std::uintptr_t>(refs + consumed) & ~std::uintptr_t(4095);
+                if (storage_to > storage_done)
+                    nodes.discard(reinterpret_cast<const void*>(storage_done), reinterpret_cast<const void*>(storage_to));
+                storage_done = std::max(storage_done, storage_to);
+                const size_t area_to = consumed / kPageNodes * kPageNodes;
+                if (area_to > area_done) area.release(area_done, area_to);
+                area_done = std::max(area_done, area_to);
+                released = consumed;
+            }
+        }
+    });
+    touched.count_untouched();
+    return out;
 }
 
 // Places over_records arenas into `nodes`, whose storage (its capacity; the
@@ -519,20 +599,20 @@ void move_blocks_up(std::span<const BlockMove> moves, const PrimRef* refs, Node*
 // before it has moved; then the task nodes and the blocks' roots are
 // written; a tree of at least `parallel_min` nodes moves split over the
 // arenas' workers (move_blocks()). A tree that does not fit this way
-// (random triangles' trees: 1.86 nodes per record) grows the storage to
-// its size instead (NodeArray::expand(), which keeps the records and the
-// blocks over them at their offsets; a mapping, from NodeArray::kMapMin
-// bytes, grows without a second copy), and the blocks move in two steps:
-// first those whose slots start after their records (move_blocks_up():
-// each moves up past the records of every block before it, and ends below
-// the slots, hence below the records, of every block after it), then the
-// others in order as above, all on one thread; the workers only touch the
-// storage's new pages first. (Until 2026-12-05 such a tree went
-// into a fresh array beside the storage: 127 bytes per triangle at the
-// peak of a 2-thread build of 1M random triangles.)
+// (random triangles' trees: 1.86 nodes per record) goes into a new array
+// beside the storage, which gives back its pages as the copies consume them
+// (place_beside_records()). (Until 2026-12-05 such a tree went into a fresh
+// array with the storage and the overflow held whole: 127 bytes per
+// triangle at the peak of a 2-thread build of 1M random triangles; then,
+// until the new array, the storage grew in place and the blocks moved up on
+// one thread, with the overflow held whole: 91.9.)
+//
+// `front_given_back`: the caller gave the storage before the records back
+// (NodeArray::discard(); a parallel build does not write there before the
+// placement), which the moves of a tree that fits take back.
 template <class ForEach>
 void place_over_records(std::span<const PlacementArena* const> arenas, const PrimRef* refs, NodeArray& nodes,
-                        ForEach&& for_each, size_t parallel_min = 0) {
+                        ForEach&& for_each, size_t parallel_min = 0, bool front_given_back = false) {
     PieceRank rank;
     const size_t total = rank_pieces(arenas, rank);
     std::vector<BlockMove> moves;
@@ -548,34 +628,14 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
         in_place = in_place && at(nodes.data() + m.c) <= at(refs + m.block->root.begin);
     }
     if (in_place) {
+        if (front_given_back) nodes.reclaim(nodes.data(), refs);
         // Within the capacity: no reallocation, and Node() writes nothing.
         nodes.resize(total);
         move_blocks(moves, refs, nodes.data(), total >= parallel_min ? arenas.size() : 1, for_each);
     } else {
-        const size_t old_capacity = nodes.capacity();
-        refs = nodes.expand(total, refs);
-        nodes.resize(total);
-        Node* const base = nodes.data();
-        // The storage's new part is fresh memory, faulted in as it is first
-        // written: touched here by every worker, a slice each, rather than
-        // by the one thread that moves the blocks up.
         const size_t groups = total >= parallel_min ? arenas.size() : 1;
-        if (groups > 1 && total > old_capacity) {
-            char* const fresh = reinterpret_cast<char*>(base + old_capacity);
-            const size_t bytes = (total - old_capacity) * sizeof(Node);
-            for_each(groups, [&](size_t r) {
-                for (size_t i = bytes * r / groups / 4096 * 4096; i < bytes * (r + 1) / groups; i += 4096) fresh[i] = 0;
-            });
-        }
-        const auto up = [&](const BlockMove& m) { return at(base + m.c) > at(refs + m.block->root.begin); };
-        move_blocks_up(moves, refs, base, up);
-        // The others, still in the order of their ranges (no second list
-        // while the storage and the chunks are both held: the peak).
-        // On one thread too: split into runs, the buffers of the blocks
-        // copied aside would add to the peak (1.6 bytes per triangle on
-        // 1.1M random triangles).
-        moves.erase(std::remove_if(moves.begin(), moves.end(), up), moves.end());
-        move_blocks(moves, refs, base, 1, for_each);
+        if (!front_given_back) nodes.discard(nodes.data(), refs);  // never written
+        nodes = place_beside_records(moves, refs, *arenas.front()->overflow, nodes, total, groups, for_each);
     }
     Node* const out = nodes.data();
     for_each(arenas.size(), [&](size_t i) {

@@ -38,6 +38,41 @@ void report_mapped(std::ptrdiff_t delta) noexcept {
 }
 }  // namespace
 
+void report_mapped_bytes(std::ptrdiff_t delta) noexcept { report_mapped(delta); }
+
+PageLedger::PageLedger(std::size_t bytes, std::size_t unit, bool active)
+    : bytes_(active ? bytes : 0), unit_(std::max<std::size_t>(unit, 1)), units_((bytes_ + unit_ - 1) / unit_),
+      state_(new std::atomic<unsigned char>[units_]) {
+    for (std::size_t i = 0; i < units_; ++i) state_[i].store(0, std::memory_order_relaxed);
+}
+
+void PageLedger::touch(std::size_t from, std::size_t to) noexcept {
+    to = std::min(to, bytes_);
+    if (from >= to) return;
+    for (std::size_t u = from / unit_; u <= (to - 1) / unit_; ++u) {
+        unsigned char untouched = 0;
+        if (state_[u].load(std::memory_order_relaxed) == 0 &&
+            state_[u].compare_exchange_strong(untouched, 1, std::memory_order_relaxed))
+            report_mapped(std::ptrdiff_t(std::min(bytes_, (u + 1) * unit_) - u * unit_));
+    }
+}
+
+std::pair<std::size_t, std::size_t> PageLedger::release(std::size_t from, std::size_t to) noexcept {
+    const std::size_t first = (from + unit_ - 1) / unit_, last = std::min(to, bytes_) / unit_;
+    if (first >= last) return {0, 0};
+    for (std::size_t u = first; u < last; ++u)
+        if (state_[u].exchange(2, std::memory_order_relaxed) == 1) report_mapped(-std::ptrdiff_t(unit_));
+    return {first * unit_, last * unit_};
+}
+
+void PageLedger::count_untouched() noexcept { touch(0, bytes_); }
+
+void PageLedger::release_counted() noexcept {
+    for (std::size_t u = 0; u < units_; ++u)
+        if (state_[u].exchange(2, std::memory_order_relaxed) == 1)
+            report_mapped(-std::ptrdiff_t(std::min(bytes_, (u + 1) * unit_) - u * unit_));
+}
+
 void set_mapped_bytes_observer(MappedBytesObserver observer) noexcept {
     g_mapped_observer.store(observer, std::memory_order_release);
 }
@@ -52,7 +87,7 @@ std::size_t round_up(std::size_t bytes, std::size_t unit) { return (bytes + unit
 // Address space for `reserved` bytes from a 2 MiB boundary, inaccessible,
 // advised for huge pages as a whole (advice on part of it would split it
 // into areas of different kinds, which mremap() refuses to take together).
-void* reserve_aligned(std::size_t reserved) {
+void* reserve_aligned(std::size_t reserved, bool huge = true) {
     const std::size_t span = reserved + kHugePage;
     void* raw = mmap(nullptr, span, PROT_NONE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
     if (raw == MAP_FAILED) throw std::bad_alloc();
@@ -60,21 +95,22 @@ void* reserve_aligned(std::size_t reserved) {
     const std::uintptr_t start = (at + kHugePage - 1) & ~std::uintptr_t(kHugePage - 1);
     if (start > at) (void)munmap(raw, start - at);
     if (at + span > start + reserved) (void)munmap(reinterpret_cast<void*>(start + reserved), at + span - start - reserved);
-#if defined(MADV_HUGEPAGE)
-    (void)madvise(reinterpret_cast<void*>(start), reserved, MADV_HUGEPAGE);  // advice only
+#if defined(MADV_HUGEPAGE) && defined(MADV_NOHUGEPAGE)
+    (void)madvise(reinterpret_cast<void*>(start), reserved, huge ? MADV_HUGEPAGE : MADV_NOHUGEPAGE);  // advice only
 #endif
     return reinterpret_cast<void*>(start);
 }
 }  // namespace
 
-PageMapping map_pages(std::size_t bytes) {
+PageMapping map_pages(std::size_t bytes, std::size_t reserve, bool counted, bool huge) {
     PageMapping m;
     m.bytes = round_up(std::max<std::size_t>(bytes, 1), kPage);
-    m.reserved = round_up(2 * m.bytes, kHugePage);
-    m.p = reserve_aligned(m.reserved);
-    report_mapped(std::ptrdiff_t(m.bytes));
+    m.reserved = round_up(std::max(2 * m.bytes, reserve), kHugePage);
+    m.p = reserve_aligned(m.reserved, huge);
+    if (counted) report_mapped(std::ptrdiff_t(m.bytes));
     if (mprotect(m.p, m.bytes, PROT_READ | PROT_WRITE) != 0) {
         PageMapping failed = m;
+        if (!counted) failed.discarded = failed.bytes;  // nothing to take back
         unmap_pages(failed);
         throw std::bad_alloc();
     }
@@ -123,16 +159,32 @@ void grow_pages(PageMapping& m, std::size_t bytes) {
     m.bytes = bytes;
 }
 
+std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes, bool report) noexcept {
+    if (m.p == nullptr) return 0;
+    // Whole pages by address (m.p need not be page-aligned: heap storage).
+    const auto base = reinterpret_cast<std::uintptr_t>(m.p);
+    const std::uintptr_t first = round_up(base + std::min(offset, m.bytes), kPage),
+                         last = (base + std::min(m.bytes, offset + bytes)) / kPage * kPage;
+    if (first >= last) return 0;
+    if (madvise(reinterpret_cast<void*>(first), last - first, MADV_DONTNEED) != 0) return 0;
+    if (report) {
+        m.discarded += last - first;
+        report_mapped(-std::ptrdiff_t(last - first));
+    }
+    return last - first;
+}
+
 void unmap_pages(PageMapping& m) noexcept {
     if (m.p == nullptr) return;
     (void)munmap(m.p, m.reserved);  // fails only for an invalid range, which a caller's bug would be
-    report_mapped(-std::ptrdiff_t(m.bytes));
+    report_mapped(-std::ptrdiff_t(m.bytes - m.discarded));
     m = PageMapping{};
 }
 #else
 bool growable_mappings_available() noexcept { return false; }
-PageMapping map_pages(std::size_t) { throw std::bad_alloc(); }
+PageMapping map_pages(std::size_t, std::size_t, bool, bool) { throw std::bad_alloc(); }
 void grow_pages(PageMapping&, std::size_t) { throw std::bad_alloc(); }
+std::size_t discard_pages(PageMapping&, std::size_t, std::size_t, bool) noexcept { return 0; }
 void unmap_pages(PageMapping& m) noexcept { m = PageMapping{}; }
 #endif
 

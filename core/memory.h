@@ -10,7 +10,10 @@
 #pragma once
 
 #include <algorithm>
+#include <atomic>
 #include <cstddef>
+#include <memory>
+#include <utility>
 #include <vector>
 
 namespace canopy {
@@ -92,13 +95,57 @@ bool growable_mappings_available() noexcept;
 
 struct PageMapping {
     void* p = nullptr;
-    std::size_t bytes = 0;     // accessible, a whole number of pages
-    std::size_t reserved = 0;  // address space from p on
+    std::size_t bytes = 0;      // accessible, a whole number of pages
+    std::size_t reserved = 0;   // address space from p on
+    std::size_t discarded = 0;  // of `bytes`, given back by discard_pages()
 };
-// At least `bytes` accessible (rounded up to whole pages).
-PageMapping map_pages(std::size_t bytes);
+// At least `bytes` accessible (rounded up to whole pages), in a reservation
+// of at least `reserve` bytes (twice `bytes` if more). `counted` false: the
+// caller reports the mapping's bytes itself (report_mapped_bytes(), e.g.
+// through a TouchCounter as it writes them), all of them before the
+// mapping is unmapped.
+// `huge` false: advised against huge pages instead (memory written sparsely,
+// whose count must follow its 4 KiB pages).
+PageMapping map_pages(std::size_t bytes, std::size_t reserve = 0, bool counted = true, bool huge = true);
 // Makes at least `bytes` accessible, keeping the contents; m.p may change.
 void grow_pages(PageMapping& m, std::size_t bytes);
+// Gives the whole pages inside [offset, offset + bytes) of the mapping back
+// to the system (their contents are gone; they read as zeros if touched
+// again, which the caller must not do: they are no longer counted) and
+// reports them; returns the bytes given back.
+// `report` false: for mappings counted by a PageLedger.
+std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes, bool report = true) noexcept;
+// Reports the accessible bytes that were not discarded as given back.
 void unmap_pages(PageMapping& m) noexcept;
+// Reports `delta` bytes to the observer (for mappings made uncounted).
+void report_mapped_bytes(std::ptrdiff_t delta) noexcept;
+
+// The count of an uncounted mapping's bytes (map_pages(..., false)), kept
+// in units of `unit` bytes: a unit is reported when it is first written
+// (touch(), whichever thread comes first; on huge pages a unit of 2 MiB,
+// which a first write brings in whole) and reported as given back when it
+// is released (release()). `active` false (heap memory, which the heap
+// probe counts): reports nothing. The owner settles the rest before the
+// mapping goes: count_untouched() for memory that is handed on whole (a
+// NodeArray then unmaps it, reporting all its bytes as given back), or
+// release_counted() for memory that goes with its owner.
+class PageLedger {
+public:
+    PageLedger() = default;
+    PageLedger(std::size_t bytes, std::size_t unit, bool active);
+    // Bytes [from, to) are about to be written.
+    void touch(std::size_t from, std::size_t to) noexcept;
+    // Marks the units wholly inside [from, to) released (reporting those
+    // counted as given back) and returns their byte range, empty if none,
+    // for the caller to give back (discard_pages(..., false)).
+    std::pair<std::size_t, std::size_t> release(std::size_t from, std::size_t to) noexcept;
+    void count_untouched() noexcept;
+    void release_counted() noexcept;
+    std::size_t unit() const noexcept { return unit_; }
+
+private:
+    std::size_t bytes_ = 0, unit_ = 1, units_ = 0;
+    std::unique_ptr<std::atomic<unsigned char>[]> state_;  // 0 untouched, 1 counted, 2 released
+};
 
 }  // namespace canopy

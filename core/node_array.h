@@ -43,10 +43,23 @@ public:
     NodeArray() noexcept = default;
     // An array whose storage is a mapping from `bytes` on instead of
     // kMapMin (tests reach the mapped paths with small arrays this way).
+    // `reserve`: the address space its first mapping reserves (at least
+    // twice the mapped bytes), so that it grows in place up to there.
     struct MapFrom {
         std::size_t bytes;
+        std::size_t reserve = 0;
     };
-    explicit NodeArray(MapFrom m) noexcept : map_min_(m.bytes) {}
+    explicit NodeArray(MapFrom m) noexcept : map_min_(m.bytes), reserve_(m.reserve) {}
+    // An array of n nodes (not initialised) whose storage is a mapping
+    // whatever its size, where the system has them, made without reporting
+    // its bytes (core/memory.h): the caller reports them, e.g. through a
+    // TouchCounter as it writes them, all of them before the array lets its
+    // storage go. Without mappings, heap storage as usual (mapped() false).
+    // `huge` false: advised against huge pages (core/memory.h, map_pages()).
+    struct Uncounted {
+        bool huge = true;
+    };
+    NodeArray(Uncounted u, std::size_t n);
     NodeArray(const NodeArray& o) : NodeArray() { assign(o.begin(), o.end()); }
     NodeArray(NodeArray&& o) noexcept { swap(o); }
     NodeArray(std::initializer_list<Node> l) : NodeArray() { assign(l.begin(), l.end()); }
@@ -91,9 +104,11 @@ public:
     // Capacity for at least n nodes, keeping every byte of the storage, not
     // only the first size() nodes. A mapping grows in place or moves its
     // pages (its old and new sizes are never held at once); heap storage
-    // is copied into new storage (a mapping from kMapMin bytes on).
+    // is copied into a mapping (where the system has them; new heap
+    // storage otherwise) a piece at a time, each piece given back once
+    // copied, so that the two are never held whole at once either.
     void expand(std::size_t n) {
-        if (n > capacity_) reallocate(n, capacity_);
+        if (n > capacity_) reallocate(n, capacity_, true);
     }
     // expand(n), and where `inside`, an address in the storage (a record
     // past the nodes), is afterwards.
@@ -103,6 +118,13 @@ public:
         expand(n);
         return reinterpret_cast<T*>(reinterpret_cast<char*>(data_) + offset);
     }
+    // Gives the whole pages of the storage inside [from, to) back to the
+    // system: their contents are gone and they must not be written again
+    // (they are no longer counted). Returns the bytes given back.
+    std::size_t discard(const void* from, const void* to) noexcept;
+    // Takes back what discard(from, to) gave back, to be written again:
+    // counts it again. [from, to) must be exactly such a range.
+    void reclaim(const void* from, const void* to) noexcept;
     // New nodes are not initialised.
     void resize(std::size_t n) {
         if (n > capacity_) reallocate(std::max(n, 2 * capacity_), size_);
@@ -137,11 +159,16 @@ public:
         std::swap(capacity_, o.capacity_);
         std::swap(mapping_, o.mapping_);
         std::swap(map_min_, o.map_min_);
+        std::swap(reserve_, o.reserve_);
+        std::swap(heap_discarded_, o.heap_discarded_);
     }
 
 private:
     // New storage of at least n nodes holding the first `keep` of the old.
-    void reallocate(std::size_t n, std::size_t keep);
+    // `whole` (expand()): heap storage moves into a mapping, where the
+    // system has them, without the two held whole at once.
+    void reallocate(std::size_t n, std::size_t keep, bool whole = false);
+    void move_to_mapping(std::size_t bytes, std::size_t keep);
     void release() noexcept;
 
     Node* data_ = nullptr;
@@ -149,6 +176,8 @@ private:
     std::size_t capacity_ = 0;
     PageMapping mapping_;  // p == data_ when the storage is a mapping
     std::size_t map_min_ = kMapMin;
+    std::size_t reserve_ = 0;
+    std::size_t heap_discarded_ = 0;  // heap storage's bytes given back by discard()
 };
 
 }  // namespace canopy

@@ -26,6 +26,7 @@ struct alignas(64) Worker {
 
 struct Workers {
     std::vector<Worker> w;
+    OverflowArea overflow;  // one-off builds' (reset(..., over_records))
 
     Workers() = default;
     Workers(uint32_t count, uint32_t primitives) { reset(count, primitives); }
@@ -39,12 +40,16 @@ struct Workers {
     // until the build ends, beside the records, so it is kept small beside
     // the scene (until late on 2026-12-02: a quarter of the share, at least
     // 1 MiB).
-    // `over_records`: the blocks are kept over their records (SubtreeBlock).
+    // `over_records`: the blocks are kept over their records (SubtreeBlock),
+    // the nodes that do not fit over them in the overflow area or, a few,
+    // in the chunks.
     void reset(uint32_t count, uint32_t primitives, uint32_t chunk_nodes = 0, bool over_records = false) {
         w.resize(count);
+        overflow.reset(over_records ? primitives : 0);
         // Over their records (a one-off build), the chunks take only the
-        // nodes of subtrees that have more nodes than records: a few percent
-        // of a mesh's nodes, so an eighth of that size, from 1,024 nodes.
+        // nodes past the records of subtrees with a few more nodes than
+        // records (PlacementArena::kSpillMax; the overflow area takes the
+        // others): an eighth of that size, from 1,024 nodes.
         const size_t share = size_t(primitives) / ((over_records ? 128 : 16) * size_t(std::max(1u, count)));
         size_t chunk = chunk_nodes ? chunk_nodes
                                    : std::clamp<size_t>(share, size_t(1) << (over_records ? 10 : 13), size_t(1) << 17);
@@ -63,6 +68,7 @@ struct Workers {
             w[i].out.reset();
             w[i].out.chunk_nodes = chunk;
             w[i].out.over_records = over_records;
+            w[i].out.overflow = over_records ? &overflow : nullptr;
         }
     }
     Worker& operator[](size_t i) { return w[i]; }

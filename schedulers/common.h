@@ -69,7 +69,9 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 // most under the default task cutoff), and then, its records being no
 // longer needed (its leaves wrote their ids to the permutation), its nodes
 // after the root are copied over them, as many as there are records; the
-// rest (a tree of more nodes than primitives) go to the worker's chunks.
+// rest (a tree of more nodes than primitives) go to the overflow area at
+// the subtree's range (core/overflow_area.h), or, if they are fewer than a
+// page of it, to the worker's spill.
 // Those records lie in the final node array's storage, in memory the build
 // has already brought in, and the placement then moves the nodes towards
 // the front of that storage (place_over_records() in core/layout.h): a
@@ -87,10 +89,13 @@ inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& r
     const uint32_t body = b.size - 1;
     b.over_records = std::min(body, root.size());
     std::memcpy(static_cast<void*>(ctx.refs + root.begin), nodes.data() + 1, size_t(b.over_records) * sizeof(Node));
-    if (body > b.over_records) {
-        const auto [chunk, first] = wk.out.append(nodes.data() + 1 + b.over_records, body - b.over_records);
-        b.chunk = chunk;
-        b.first = first;
+    const Node* rest = nodes.data() + 1 + b.over_records;
+    if (body - b.over_records >= PlacementArena::kSpillMax) {
+        wk.out.overflow->write(root.begin, rest, body - b.over_records);
+    } else if (body > b.over_records) {
+        b.spilled = true;
+        b.first = static_cast<uint32_t>(wk.out.spill.size());
+        wk.out.spill.insert(wk.out.spill.end(), rest, rest + (body - b.over_records));
     }
     wk.out.blocks.push_back(b);
 }
@@ -120,6 +125,12 @@ template <class ForEach>
 void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
     const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
     assert(st.records && "allocate_records_in_tree() first");
+    // The storage before the records (a one-off build's: they lie at the
+    // end of the final node array's) is not written before the placement:
+    // a mapping's pages there are not counted until then (finish_parallel()).
+    // (Heap storage may be memory malloc has kept, in use: given back, the
+    // placement would fault it in again.)
+    if (st.records_in_tree() && st.bvh.nodes.mapped()) st.bvh.nodes.discard(st.bvh.nodes.data(), st.records);
     const uint32_t t = std::max(1u, threads);
     const uint32_t rounds = static_cast<uint32_t>((uint64_t(st.n) + uint64_t(t) * kPrepareBlock - 1) /
                                                   (uint64_t(t) * kPrepareBlock));
@@ -150,9 +161,13 @@ void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     auto each = [&](size_t k, auto&& fn) { for_each(static_cast<uint32_t>(k), fn); };
     if (st.records_in_tree()) {
         // The blocks' nodes lie over the records, in bvh.nodes' storage
-        // (run_subtree_over_records()).
-        place_over_records(all, st.records, st.bvh.nodes, each, st.options.tuning.place_parallel_min);
+        // (run_subtree_over_records()). The workers' scratch arrays (a
+        // subtree each, up to a few hundred KiB) go before the placement.
+        for (auto& wk : workers.w) wk.out.scratch = NodeArray();
+        place_over_records(all, st.records, st.bvh.nodes, each, st.options.tuning.place_parallel_min,
+                           st.bvh.nodes.mapped());
         st.records = nullptr;
+        workers.overflow.reset(0);
         return;
     }
     // A warm Builder: the records in their own array, the blocks in chunks.

@@ -1087,21 +1087,66 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
     }
 }
 
+// A one-off parallel build by hand: the records at the end of `nodes`'
+// storage (reserved here as a build does), big nodes run as tasks, subtrees
+// below `subtree` records built over their own records
+// (run_subtree_over_records) by three workers in turn; then
+// place_over_records() with `for_each`. Returns the storage's capacity
+// before the placement.
+template <class ForEach>
+size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, std::vector<uint32_t>& perm,
+                     ForEach&& for_each, uint32_t subtree = 600) {
+    const BuildOptions opt;
+    const uint32_t n = uint32_t(m.triangle_count());
+    nodes.reserve(canopy::NodesBeforeRecords::initial_capacity(n));
+    const size_t storage = nodes.capacity();
+    canopy::PrimRef* refs = canopy::NodesBeforeRecords::records_at_end(nodes.data(), storage, n);
+    const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs);
+    EXPECT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
+    canopy::NodeTask root;
+    root.begin = 0;
+    root.end = n;
+    root.bounds = s.bounds;
+    root.cbounds = s.cbounds;
+    root.max_area = s.max_area;
+    perm.assign(n, ~0u);
+    const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
+    canopy::Workers workers(3, n);
+    workers.reset(3, n, 24, true);
+    std::vector<canopy::NodeTask> pending{root};
+    uint32_t turn = 0, subtrees = 0;
+    while (!pending.empty()) {
+        const canopy::NodeTask t = pending.back();
+        pending.pop_back();
+        canopy::Worker& wk = workers[turn++ % 3];
+        if (t.size() < subtree) {
+            canopy::sched::run_subtree_over_records(ctx, t, wk);
+            ++subtrees;
+            continue;
+        }
+        canopy::NodeTask children[2];
+        const bool split = canopy::run_node(ctx, t, children, *wk.bins, wk.skip);
+        wk.out.records.push_back(NodeRecord::of(t, !split));
+        if (split) pending.insert(pending.end(), {children[0], children[1]});
+    }
+    EXPECT_GT(subtrees, 15u);
+    const canopy::PlacementArena* views[] = {&workers[0].out, &workers[1].out, &workers[2].out};
+    canopy::place_over_records(std::span<const canopy::PlacementArena* const>(views), refs, nodes, for_each, 0);
+    return storage;
+}
+
 TEST(BuildLayout, InPlaceMovesSplitOverWorkersInAnyOrder) {
-    // A one-off parallel build by hand: the records at the end of the final
-    // array's storage, big nodes run as tasks, subtrees below 600 records
-    // built over their own records (run_subtree_over_records) by three
-    // workers in turn, and then placed in place with the moves split into
-    // three runs, run last to first (ReverseForEach): each run must copy
-    // aside the blocks whose slots lie over an earlier run's records before
-    // it moves the rest, or it overwrites blocks that have not moved. The
-    // sphere's blocks fit over their records; with the random triangles
-    // some have more nodes than records and go on in the workers' chunks.
-    // A tree of random triangles alone does not fit (1.86 nodes per record):
-    // the storage grows (a mapping or heap memory), the blocks whose slots
-    // start after their records move up, last first, each over its own
-    // records in part (move_shifted), and then the others move down in
-    // order, all on one thread.
+    // A one-off parallel build by hand (build_by_hand), placed in place with
+    // the moves split into three runs, run last to first (ReverseForEach):
+    // each run must copy aside the blocks whose slots lie over an earlier
+    // run's records before it moves the rest, or it overwrites blocks that
+    // have not moved. The sphere's blocks fit over their records; with the
+    // random triangles some have more nodes than records and go on in the
+    // overflow area or, a few, the workers' chunks. A tree of random
+    // triangles alone does not fit (1.86 nodes per record): it goes into a
+    // new array (a mapping, whatever the storage was), the runs copying
+    // their blocks from the storage and the overflow area while they give
+    // those back.
     TriangleMesh mixed = canopy::generate("sphere", 20000, 1);
     const TriangleMesh extra = canopy::generate("random", 1500, 3);
     const uint32_t shift = uint32_t(mixed.vertices.size());
@@ -1119,57 +1164,180 @@ TEST(BuildLayout, InPlaceMovesSplitOverWorkersInAnyOrder) {
     for (const Case& c : cases)
         for (const bool forward : {false, true}) {
             const std::string what = std::string(c.name) + (forward ? ", runs first to last" : ", runs last to first");
-            const TriangleMesh& m = c.mesh;
-            const BuildOptions opt;
-            const Bvh expected = build(m, opt);
-            const uint32_t n = uint32_t(m.triangle_count());
+            const Bvh expected = build(c.mesh, BuildOptions{});
             canopy::NodeArray nodes = c.mapped ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
-            nodes.reserve(canopy::NodesBeforeRecords::initial_capacity(n));
-            const size_t storage = nodes.capacity();
-            canopy::PrimRef* refs = canopy::NodesBeforeRecords::records_at_end(nodes.data(), storage, n);
-            const canopy::PrepareSummary s = canopy::prepare_triangles(m.view(), 0, n, refs);
-            ASSERT_EQ(s.first_bad, canopy::PrepareSummary::kNone);
-            canopy::NodeTask root;
-            root.begin = 0;
-            root.end = n;
-            root.bounds = s.bounds;
-            root.cbounds = s.cbounds;
-            root.max_area = s.max_area;
-            std::vector<uint32_t> perm(n, ~0u);
-            const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
-            canopy::Workers workers(3, n);
-            workers.reset(3, n, 24, true);
-            std::vector<canopy::NodeTask> pending{root};
-            uint32_t turn = 0, subtrees = 0;
-            while (!pending.empty()) {
-                const canopy::NodeTask t = pending.back();
-                pending.pop_back();
-                canopy::Worker& wk = workers[turn++ % 3];
-                if (t.size() < 600) {
-                    canopy::sched::run_subtree_over_records(ctx, t, wk);
-                    ++subtrees;
-                    continue;
-                }
-                canopy::NodeTask children[2];
-                const bool split = canopy::run_node(ctx, t, children, *wk.bins, wk.skip);
-                wk.out.records.push_back(NodeRecord::of(t, !split));
-                if (split) pending.insert(pending.end(), {children[0], children[1]});
-            }
-            ASSERT_GT(subtrees, 30u);
-            const canopy::PlacementArena* views[] = {&workers[0].out, &workers[1].out, &workers[2].out};
-            const std::span<const canopy::PlacementArena* const> arenas(views);
-            if (forward)
-                canopy::place_over_records(arenas, refs, nodes, ForwardForEach{}, 0);
-            else
-                canopy::place_over_records(arenas, refs, nodes, ReverseForEach{}, 0);
+            std::vector<uint32_t> perm;
+            const size_t storage = forward ? build_by_hand(c.mesh, nodes, perm, ForwardForEach{})
+                                           : build_by_hand(c.mesh, nodes, perm, ReverseForEach{});
             EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << what;
             EXPECT_EQ(perm, expected.permutation) << what;
-            if (c.grows)
-                EXPECT_GT(nodes.capacity(), storage) << what << ": the storage grew";
-            else
+            if (c.grows) {
+                EXPECT_GT(nodes.capacity(), storage) << what << ": an array of its own";
+                EXPECT_EQ(nodes.mapped(), canopy::growable_mappings_available()) << what;
+            } else {
                 EXPECT_EQ(nodes.capacity(), storage) << what << ": placed in the records' storage";
-            EXPECT_EQ(nodes.mapped(), c.mapped) << what;
+                EXPECT_EQ(nodes.mapped(), c.mapped) << what;
+            }
         }
+}
+
+// A for_each that notes the mapped bytes when it is first called (the start
+// of a placement's runs) and restarts the high-water mark there.
+struct MappedAtFirstRun {
+    long long mapped = -1;
+    template <class Fn>
+    void operator()(size_t k, Fn&& fn) {
+        if (mapped < 0) {
+            mapped = g_mapped.load();
+            g_mapped_peak = mapped;
+        }
+        for (size_t i = 0; i < k; ++i) fn(i);
+    }
+};
+
+TEST(BuildMemory, PlacementBesideTheRecordsGivesThemBackAsItGoes) {
+    // A tree that does not fit over its records goes into a new array
+    // (place_beside_records()) while the runs give back the records' storage
+    // and the overflow area they have consumed: the mapped bytes never rise
+    // by more than a little over what they were before the placement
+    // (before 2026-12-05 (this test's commit) the new array came on top of
+    // both, 1.86 nodes per record; a placement that gave nothing back would
+    // rise by the whole new array). Everything but the chunks is a mapping
+    // here (the storage from MapFrom{0}, the overflow area, the new array),
+    // so the observer sees all of it; subtrees of up to 2,500 records put
+    // most of their nodes past their records in the area (the chunks take
+    // fewer than PlacementArena::kSpillMax).
+    if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
+    const TriangleMesh m = canopy::generate("random", 40000, 11);
+    const Bvh expected = build(m, BuildOptions{});
+    canopy::set_mapped_bytes_observer(observe_mapped);
+    {
+        canopy::NodeArray nodes(canopy::NodeArray::MapFrom{0});
+        std::vector<uint32_t> perm;
+        MappedAtFirstRun start;
+        const long long before = g_mapped.load();
+        build_by_hand(m, nodes, perm, start, 2500);  // blocks of up to 2,150 nodes past their records: in the area
+        ASSERT_TRUE(same_nodes(nodes, expected.nodes));
+        EXPECT_EQ(perm, expected.permutation);
+        const long long tree = (long long)(nodes.capacity() * sizeof(canopy::Node));
+        ASSERT_GT(start.mapped, before);
+        // The new array (1.86 nodes per record) against the storage and the
+        // area given back: a rise of a few steps at most, here a tenth of it.
+        EXPECT_LT(g_mapped_peak.load() - start.mapped, tree / 10)
+            << "peak " << g_mapped_peak.load() << " from " << start.mapped << ", tree " << tree;
+        // Afterwards: the tree alone (the storage and the area are gone).
+        EXPECT_EQ(g_mapped.load() - before, tree);
+    }
+    EXPECT_EQ(g_mapped.load(), 0);
+    canopy::set_mapped_bytes_observer(nullptr);
+}
+
+TEST(BuildMemory, DiscardedPagesAreCountedOnce) {
+    if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
+    canopy::set_mapped_bytes_observer(observe_mapped);
+    for (const bool map : {false, true}) {
+        {
+            canopy::NodeArray v = map ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
+            v.reserve(size_t(1) << 15);  // 1 MiB
+            for (size_t i = 0; i < v.capacity(); ++i) v.data()[i] = tagged(uint32_t(i));
+            const long long start = g_mapped.load();
+            // Whole pages inside the range only.
+            const size_t given = v.discard(v.data() + 100, v.data() + 20000);
+            const size_t first = (reinterpret_cast<std::uintptr_t>(v.data() + 100) + 4095) / 4096,
+                         last = reinterpret_cast<std::uintptr_t>(v.data() + 20000) / 4096;
+            EXPECT_EQ(given, (last - first) * 4096) << map;
+            EXPECT_EQ(g_mapped.load(), start - (long long)given) << map;
+            // The rest is kept.
+            for (size_t i = 0; i < 100; ++i) ASSERT_TRUE(has_tag(v.data()[i], uint32_t(i))) << i;
+            for (size_t i = 20000; i < v.capacity(); ++i) ASSERT_TRUE(has_tag(v.data()[i], uint32_t(i))) << i;
+            v.reclaim(v.data() + 100, v.data() + 20000);
+            EXPECT_EQ(g_mapped.load(), start) << map;
+            v.discard(v.data() + 100, v.data() + 20000);
+        }
+        // Mapped: unmapped without the discarded pages; heap: the probe takes
+        // the whole block off, so the discarded pages are reported again.
+        EXPECT_EQ(g_mapped.load(), 0) << map;
+    }
+    canopy::set_mapped_bytes_observer(nullptr);
+}
+
+TEST(BuildMemory, PageLedgerCountsEachUnitOnce) {
+    canopy::set_mapped_bytes_observer(observe_mapped);
+    {
+        canopy::PageLedger ledger(10 * 4096 + 100, 4096, true);  // 11 units, the last of 100 bytes
+        ledger.touch(10, 20);
+        EXPECT_EQ(g_mapped.load(), 4096);
+        ledger.touch(4000, 8200);  // units 0 to 2
+        EXPECT_EQ(g_mapped.load(), 3 * 4096);
+        // Releases the whole units inside only (1 and 2), and reports those counted (both).
+        const auto [a, b] = ledger.release(100, 3 * 4096 + 5);
+        EXPECT_EQ(a, 4096u);
+        EXPECT_EQ(b, 3 * 4096u);
+        EXPECT_EQ(g_mapped.load(), 4096);
+        ledger.touch(4096, 4097);  // released: not counted again
+        EXPECT_EQ(g_mapped.load(), 4096);
+        ledger.count_untouched();  // units 3 to 10: 7 whole and 100 bytes
+        EXPECT_EQ(g_mapped.load(), 4096 + 7 * 4096 + 100);
+        ledger.release_counted();
+        EXPECT_EQ(g_mapped.load(), 0);
+    }
+    {
+        canopy::PageLedger off(1 << 20, 4096, false);  // heap memory: reports nothing
+        off.touch(0, 1 << 20);
+        off.count_untouched();
+        EXPECT_EQ(g_mapped.load(), 0);
+    }
+    canopy::set_mapped_bytes_observer(nullptr);
+}
+
+TEST(BuildMemory, HeapNodeArrayExpandsIntoAMappingPieceByPiece) {
+    // expand() of heap storage copies it into a mapping a piece at a time,
+    // giving back each piece of the heap block once copied: the observer
+    // sees the mapping counted as it is written and the heap's pages given
+    // back, so its running count stays near zero until the mapping's part
+    // past the copy is counted (then the heap block goes, and its pages
+    // given back are reported again as the heap probe takes it off whole).
+    // A copy into a new block before freeing the old would show the whole
+    // new size first.
+    if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
+    struct Log {
+        static void note(std::ptrdiff_t d) { events().push_back(d); }
+        static std::vector<std::ptrdiff_t>& events() {
+            static std::vector<std::ptrdiff_t> e;
+            return e;
+        }
+    };
+    Log::events().reserve(1 << 12);
+    Log::events().clear();
+    canopy::set_mapped_bytes_observer(Log::note);
+    for (const size_t old_nodes : {size_t(3) << 15, size_t(1) << 18}) {  // 3 MiB (4 KiB units) and 8 (2 MiB)
+        Log::events().clear();
+        {
+            canopy::NodeArray v;  // heap below kMapMin
+            v.reserve(old_nodes);
+            ASSERT_FALSE(v.mapped());
+            for (size_t i = 0; i < v.capacity(); ++i) v.data()[i] = tagged(uint32_t(i));
+            const size_t old_cap = v.capacity();
+            v.expand(2 * old_cap);
+            EXPECT_TRUE(v.mapped());
+            for (size_t i = 0; i < old_cap; ++i) ASSERT_TRUE(has_tag(v.data()[i], uint32_t(i))) << i;
+            const std::vector<std::ptrdiff_t> e = Log::events();
+            ASSERT_GE(e.size(), 3u);
+            long long sum = 0, high = 0, total = 0;
+            for (size_t i = 0; i + 1 < e.size(); ++i) {
+                sum += e[i];
+                high = std::max(high, sum);
+            }
+            for (const std::ptrdiff_t d : e) total += d;
+            const long long grown = (long long)((v.capacity() - old_cap) * sizeof(canopy::Node));
+            // Before the heap block goes: at most the part past the copy and
+            // one unit in writing (2 MiB on huge pages) plus the pages at the
+            // pieces' edges.
+            EXPECT_LE(high, grown + (2 << 20) + 16 * 4096) << old_nodes;
+            EXPECT_EQ(total, (long long)(v.capacity() * sizeof(canopy::Node))) << old_nodes;
+        }
+    }
+    canopy::set_mapped_bytes_observer(nullptr);
 }
 
 TEST(BuildLayout, FirstChildSlotFormula) {

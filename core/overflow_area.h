@@ -1,0 +1,87 @@
+// canopy: where a one-off parallel build keeps the nodes of subtrees that do
+// not fit over their own records.
+//
+// A worker writes each subtree it builds below the task cutoff over the
+// subtree's records (core/layout.h, SubtreeBlock); a subtree has at most
+// 2k - 1 nodes for k records, so the nodes past the first k fit in k slots
+// too. The overflow area gives every subtree those k slots at the same
+// index as its records, [begin, begin + k): one array for all workers, in
+// the order of the subtrees' ranges whoever built them, so that the
+// placement, which consumes the subtrees in that order, can give the pages
+// back as it goes (place_beside_records()). Meshes' trees put a few percent
+// of their subtrees' nodes here, random triangles' trees 0.86 nodes per
+// record. The area is address space until written: 4 KiB pages (no huge
+// pages, which a sparse first write would bring in 2 MiB at a time), each
+// counted when first written (PageLedger).
+#pragma once
+
+#include "memory.h"
+#include "node.h"
+
+#include <cstddef>
+#include <cstring>
+#include <memory>
+#include <utility>
+
+namespace canopy {
+
+class OverflowArea {
+public:
+    static constexpr std::size_t kUnit = 4096;
+
+    OverflowArea() = default;
+    OverflowArea(OverflowArea&& o) noexcept { swap(o); }
+    OverflowArea& operator=(OverflowArea&& o) noexcept {
+        OverflowArea(std::move(o)).swap(*this);
+        return *this;
+    }
+    void swap(OverflowArea& o) noexcept {
+        std::swap(mapping_, o.mapping_);
+        std::swap(ledger_, o.ledger_);
+        std::swap(heap_, o.heap_);
+        std::swap(data_, o.data_);
+    }
+    ~OverflowArea() { reset(0); }
+
+    // Room for nodes [0, n) (n: the build's primitives; 0 lets it go).
+    void reset(std::size_t n) {
+        if (mapping_.p) {
+            ledger_.release_counted();
+            mapping_.discarded = mapping_.bytes;  // the ledger did the reporting
+            unmap_pages(mapping_);
+        }
+        heap_.reset();
+        data_ = nullptr;
+        if (n == 0) return;
+        if (growable_mappings_available()) {
+            mapping_ = map_pages(n * sizeof(Node), 0, false, false);
+            ledger_ = PageLedger(mapping_.bytes, kUnit, true);
+            data_ = static_cast<Node*>(mapping_.p);
+        } else {
+            heap_.reset(new Node[n]);  // counted by the heap
+            data_ = heap_.get();
+        }
+    }
+    Node* data() const noexcept { return data_; }
+
+    // Writes nodes [at, at + k).
+    void write(std::size_t at, const Node* src, std::size_t k) noexcept {
+        if (mapping_.p) ledger_.touch(at * sizeof(Node), (at + k) * sizeof(Node));
+        std::memcpy(static_cast<void*>(data_ + at), src, k * sizeof(Node));
+    }
+    // Gives back the pages wholly inside nodes [from, to), which must not be
+    // read or written again.
+    void release(std::size_t from, std::size_t to) noexcept {
+        if (!mapping_.p) return;
+        const auto [a, b] = ledger_.release(from * sizeof(Node), to * sizeof(Node));
+        if (b > a) discard_pages(mapping_, a, b - a, false);
+    }
+
+private:
+    PageMapping mapping_;
+    PageLedger ledger_;
+    std::unique_ptr<Node[]> heap_;
+    Node* data_ = nullptr;
+};
+
+}  // namespace canopy
