@@ -125,12 +125,6 @@ template <class ForEach>
 void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
     const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
     assert(st.records && "allocate_records_in_tree() first");
-    // The storage before the records (a one-off build's: they lie at the
-    // end of the final node array's) is not written before the placement:
-    // a mapping's pages there are not counted until then (finish_parallel()).
-    // (Heap storage may be memory malloc has kept, in use: given back, the
-    // placement would fault it in again.)
-    if (st.records_in_tree() && st.bvh.nodes.mapped()) st.bvh.nodes.discard(st.bvh.nodes.data(), st.records);
     const uint32_t t = std::max(1u, threads);
     const uint32_t rounds = static_cast<uint32_t>((uint64_t(st.n) + uint64_t(t) * kPrepareBlock - 1) /
                                                   (uint64_t(t) * kPrepareBlock));
@@ -164,8 +158,7 @@ void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
         // (run_subtree_over_records()). The workers' scratch arrays (a
         // subtree each, up to a few hundred KiB) go before the placement.
         for (auto& wk : workers.w) wk.out.scratch = NodeArray();
-        place_over_records(all, st.records, st.bvh.nodes, each, st.options.tuning.place_parallel_min,
-                           st.bvh.nodes.mapped());
+        place_over_records(all, st.records, st.bvh.nodes, each, st.options.tuning.place_parallel_min);
         st.records = nullptr;
         workers.overflow.reset(0);
         return;
