@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cstdint>
+#include <cstring>
 #include <new>
 
 #if defined(__linux__)
@@ -140,13 +141,23 @@ void grow_pages(PageMapping& m, std::size_t bytes) {
         throw;
     }
     if (mremap(m.p, m.bytes, m.bytes, MREMAP_MAYMOVE | MREMAP_FIXED, q) == MAP_FAILED) {
-        (void)munmap(q, reserved);
-        report_mapped(-std::ptrdiff_t(bytes - m.bytes));
-        throw std::bad_alloc();
+        // Pages moved in from elsewhere (move_pages()) make the mapping
+        // several areas, which mremap() does not take together: copied.
+        if (mprotect(q, m.bytes, PROT_READ | PROT_WRITE) != 0) {
+            (void)munmap(q, reserved);
+            report_mapped(-std::ptrdiff_t(bytes - m.bytes));
+            throw std::bad_alloc();
+        }
+        report_mapped(std::ptrdiff_t(m.bytes));  // both held while it copies
+        std::memcpy(q, m.p, m.bytes);
+        (void)munmap(m.p, m.reserved);
+        report_mapped(-std::ptrdiff_t(m.bytes - m.discarded));
+        m.discarded = 0;
+    } else if (m.reserved > m.bytes) {
+        // mremap() left a hole where the pages were; the rest of the old
+        // reservation goes too.
+        (void)munmap(static_cast<char*>(m.p) + m.bytes, m.reserved - m.bytes);
     }
-    // mremap() left a hole where the pages were; the rest of the old
-    // reservation goes too.
-    if (m.reserved > m.bytes) (void)munmap(static_cast<char*>(m.p) + m.bytes, m.reserved - m.bytes);
     const std::size_t moved = m.bytes;
     m.p = q;
     m.reserved = reserved;
@@ -174,6 +185,21 @@ std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes,
     return last - first;
 }
 
+bool move_pages(PageMapping& m, std::size_t offset, void* to, std::size_t bytes) noexcept {
+#if defined(MREMAP_DONTUNMAP)
+    if (m.p == nullptr || offset % kPage || bytes % kPage || offset + bytes > m.bytes) return false;
+    if (mremap(static_cast<char*>(m.p) + offset, bytes, bytes, MREMAP_MAYMOVE | MREMAP_FIXED | MREMAP_DONTUNMAP, to) ==
+        MAP_FAILED)
+        return false;
+    m.discarded += bytes;
+    report_mapped(-std::ptrdiff_t(bytes));
+    return true;
+#else
+    (void)m, (void)offset, (void)to, (void)bytes;
+    return false;
+#endif
+}
+
 void unmap_pages(PageMapping& m) noexcept {
     if (m.p == nullptr) return;
     (void)munmap(m.p, m.reserved);  // fails only for an invalid range, which a caller's bug would be
@@ -185,6 +211,7 @@ bool growable_mappings_available() noexcept { return false; }
 PageMapping map_pages(std::size_t, std::size_t, bool, bool) { throw std::bad_alloc(); }
 void grow_pages(PageMapping&, std::size_t) { throw std::bad_alloc(); }
 std::size_t discard_pages(PageMapping&, std::size_t, std::size_t, bool) noexcept { return 0; }
+bool move_pages(PageMapping&, std::size_t, void*, std::size_t) noexcept { return false; }
 void unmap_pages(PageMapping& m) noexcept { m = PageMapping{}; }
 #endif
 

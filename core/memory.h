@@ -115,6 +115,13 @@ void grow_pages(PageMapping& m, std::size_t bytes);
 // reports them; returns the bytes given back.
 // `report` false: for mappings counted by a PageLedger.
 std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes, bool report = true) noexcept;
+// Moves the pages of [offset, offset + bytes) of the mapping to `to` (a
+// range of another mapping, whose pages there are replaced), page tables
+// only, nothing copied or zeroed (mremap, MREMAP_DONTUNMAP: the range stays
+// mapped here, empty); counted as given back here (the caller counts them
+// where they went). Whole huge pages move whole when both ranges are
+// 2 MiB-aligned. Returns false, changing nothing, where the system cannot.
+bool move_pages(PageMapping& m, std::size_t offset, void* to, std::size_t bytes) noexcept;
 // Reports the accessible bytes that were not discarded as given back.
 void unmap_pages(PageMapping& m) noexcept;
 // Reports `delta` bytes to the observer (for mappings made uncounted).
@@ -140,6 +147,10 @@ public:
     // for the caller to give back (discard_pages(..., false)).
     std::pair<std::size_t, std::size_t> release(std::size_t from, std::size_t to) noexcept;
     void count_untouched() noexcept;
+    // Whether the unit holding byte `at` is neither counted nor released.
+    bool untouched(std::size_t at) const noexcept {
+        return at < bytes_ && state_[at / unit_].load(std::memory_order_relaxed) == 0;
+    }
     void release_counted() noexcept;
     std::size_t unit() const noexcept { return unit_; }
 

@@ -91,6 +91,12 @@ std::size_t NodeArray::discard(const void* from, const void* to) noexcept {
     return given;
 }
 
+bool NodeArray::give_pages(const void* from, void* to, std::size_t bytes) noexcept {
+    if (!mapped()) return false;
+    return move_pages(mapping_, std::size_t(static_cast<const char*>(from) - reinterpret_cast<const char*>(data_)), to,
+                      bytes);
+}
+
 void NodeArray::reclaim(const void* from, const void* to) noexcept {
     const auto first = (reinterpret_cast<std::uintptr_t>(from) + 4095) & ~std::uintptr_t(4095),
                last = reinterpret_cast<std::uintptr_t>(to) & ~std::uintptr_t(4095);

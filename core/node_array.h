@@ -122,6 +122,11 @@ public:
     // system: their contents are gone and they must not be written again
     // (they are no longer counted). Returns the bytes given back.
     std::size_t discard(const void* from, const void* to) noexcept;
+    // Moves the storage's pages [from, from + bytes) (whole pages, a
+    // mapping's) to `to`, the storage of another mapped array, without
+    // copying (core/memory.h, move_pages()): they are gone from here like
+    // discard()ed ones. False where it cannot (heap storage, the system).
+    bool give_pages(const void* from, void* to, std::size_t bytes) noexcept;
     // Takes back what discard(from, to) gave back, to be written again:
     // counts it again. [from, to) must be exactly such a range.
     void reclaim(const void* from, const void* to) noexcept;
