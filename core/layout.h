@@ -524,7 +524,14 @@ void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* ou
 inline constexpr size_t kDiscardUnit = size_t(256) << 10;
 inline constexpr size_t kTouchUnit = size_t(2) << 20;
 inline constexpr size_t kHugeMin = size_t(56) << 20;
-inline constexpr size_t kWholeHugeMin = size_t(96) << 20;
+inline constexpr size_t kRunsMin = size_t(192) << 20;
+
+// place_beside_records()'s thresholds (tests lower them to reach its paths
+// with small trees).
+struct BesideRecordsSizes {
+    size_t huge_min = kHugeMin;  // the new array on huge pages from here (and pages moved to it)
+    size_t runs_min = kRunsMin;  // moving pages, the copies split into runs from here
+};
 
 // Places a tree that does not fit over its records (place_over_records())
 // into a new array of `total` nodes beside the records' storage `nodes`,
@@ -541,36 +548,42 @@ inline constexpr size_t kWholeHugeMin = size_t(96) << 20;
 // new array (the caller swaps it in). `area`: the arenas' overflow area.
 template <class ForEach>
 NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* refs, OverflowArea& area,
-                               NodeArray& nodes, size_t total, size_t groups, ForEach&& for_each) {
-    groups = std::clamp<size_t>(groups, 1, std::max<size_t>(moves.size(), 1));
-    const std::vector<size_t> first = cut_runs(moves, groups);
-    // On huge pages from kHugeMin bytes: each run has one huge page in
-    // writing at a time, counted whole (up to 2 MiB a run more than it has
-    // written); smaller arrays, for which that would be a sizeable part,
-    // fault in 4 KiB pages (and count them), about five times as slow per
-    // byte (a 64 MiB mapping touched in 12.4 ms against 2.6, 2026-12-05).
-    const bool huge = total * sizeof(Node) >= kHugeMin;
+                               NodeArray& nodes, size_t total, size_t groups, ForEach&& for_each,
+                               BesideRecordsSizes sizes = {}) {
+    // On huge pages from kHugeMin bytes (counted 2 MiB at a time as first
+    // written); smaller arrays, for which the 2 MiB a run may have counted
+    // ahead of its writes would be a sizeable part, fault in 4 KiB pages
+    // (and count them), about five times as slow per byte (a 64 MiB mapping
+    // touched in 12.4 ms against 2.6, 2026-12-05).
+    const bool huge = total * sizeof(Node) >= sizes.huge_min;
     NodeArray out(NodeArray::Uncounted{huge}, total);
     PageLedger touched(out.capacity() * sizeof(Node), huge ? kTouchUnit : 4096, out.mapped());
     // Steps of kDiscardUnit, smaller for small trees (each run may hold up
     // to a step of the storage and of the area that it has consumed).
     const size_t step = std::clamp<size_t>(total / 128, 4096 / sizeof(PrimRef), kDiscardUnit / sizeof(PrimRef));
-    // A storage of kWholeHugeMin bytes or more (on huge pages) is given back
-    // in whole huge pages: giving back part of one splits it, which made the
-    // placement of 4M random triangles take 15.9 to 55.8 ms against 13.3 to
-    // 14.9 (2026-12-05, four traces each). Smaller ones, for which the 2 MiB
-    // each run may then hold would be a sizeable part, page by page.
-    const std::uintptr_t storage_unit =
-        nodes.capacity() * sizeof(Node) >= kWholeHugeMin ? (std::uintptr_t(2) << 20) - 1 : std::uintptr_t(4095);
-    // A storage of kWholeHugeMin bytes or more on huge pages hands its
-    // consumed huge pages to the new array instead (NodeArray::give_pages():
-    // page tables move, nothing is zeroed): about one of the new array's
-    // huge pages in two (1.86 nodes per record) comes from the storage.
-    // Writing fresh huge pages cost the 2-thread builds of 4M random
-    // triangles 4% to 7% (the kernel zeroes each, and may have to compact
-    // memory to find it). A run takes only huge pages wholly inside its own
-    // slots, before it writes them, so no other run writes there.
-    const bool recycle = huge && out.mapped() && nodes.mapped() && storage_unit != 4095;
+    // With the new array on huge pages and the storage a mapping (on huge
+    // pages too), the storage's consumed huge pages go to the new array
+    // (NodeArray::give_pages(): page tables move, nothing is zeroed), and so
+    // do the overflow area's consumed 2 MiB (4 KiB pages), before the run
+    // writes there: about as many bytes as the new array needs (1.86 nodes
+    // per record: 1 from the storage, 0.86 from the area). The storage goes
+    // in whole huge pages and the area in whole 2 MiB, each run keeping the
+    // last of each for the next huge page it writes; a run takes only huge
+    // pages wholly inside its own slots, before it writes them, so no other
+    // run writes there. Measured on the Intel host (2026-12-05): giving
+    // back part of a huge page splits it, and a fresh huge page is zeroed
+    // by the kernel (which at times must compact memory to find one): the
+    // placement of 1M random triangles took 11.3 to 12.8 ms that way
+    // against 4.4 to 5.5 (traced 2-thread tbb builds), and alternated builds
+    // of 4M random triangles 1.07 times as long as before the new array
+    // (0.996 with the pages moved). A run then holds up to about 6 MiB it
+    // has consumed or not yet written, so below kRunsMin bytes of new array
+    // the copies run as one.
+    const bool recycle = huge && out.mapped() && nodes.mapped();
+    const std::uintptr_t storage_unit = recycle ? (std::uintptr_t(2) << 20) - 1 : std::uintptr_t(4095);
+    groups = std::clamp<size_t>(recycle && total * sizeof(Node) < sizes.runs_min ? 1 : groups, 1,
+                                std::max<size_t>(moves.size(), 1));
+    const std::vector<size_t> first = cut_runs(moves, groups);
     constexpr size_t kHuge = size_t(2) << 20;
     for_each(groups, [&](size_t r) {
         if (first[r] == first[r + 1]) return;
@@ -587,16 +600,26 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
         const size_t slots_from = size_t(moves[first[r]].c) * sizeof(Node);
         const size_t slots_to = (size_t(moves[first[r + 1] - 1].c) + moves[first[r + 1] - 1].block->size - 1) * sizeof(Node);
         std::uintptr_t spare = 0;
+        // Likewise a consumed 2 MiB of the overflow area (4 KiB pages, moved
+        // as they are), its first node.
+        constexpr size_t kNone = ~size_t(0), kHugeNodes = kHuge / sizeof(Node);
+        size_t area_spare = kNone;
         char* const base = reinterpret_cast<char*>(out.data());
         for (size_t k = first[r]; k < first[r + 1]; ++k) {
             const BlockMove& m = moves[k];
             const SubtreeBlock& b = *m.block;
             const size_t from = size_t(m.c) * sizeof(Node), to = (size_t(m.c) + b.size - 1) * sizeof(Node);
-            if (recycle && spare) {
-                for (size_t u = from / kHuge * kHuge; u < to && spare; u += kHuge)
-                    if (u >= slots_from && u + kHuge <= slots_to && touched.untouched(u) &&
-                        nodes.give_pages(reinterpret_cast<const void*>(spare), base + u, kHuge))
-                        spare = 0;  // counted here by touch() below, as it was given back there
+            if (recycle && (spare || area_spare != kNone)) {
+                for (size_t u = from / kHuge * kHuge; u < to && (spare || area_spare != kNone); u += kHuge) {
+                    if (u < slots_from || u + kHuge > slots_to || !touched.untouched(u)) continue;
+                    // Counted there by touch() below, as given back here.
+                    if (spare) {
+                        if (nodes.give_pages(reinterpret_cast<const void*>(spare), base + u, kHuge)) spare = 0;
+                    } else {
+                        area.give(area_spare, base + u, kHuge);
+                        area_spare = kNone;
+                    }
+                }
             }
             touched.touch(from, to);
             place_block_body(*m.arena, b, refs, m.c, out.data() + m.c);
@@ -614,13 +637,22 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
                 if (storage_to > storage_done)
                     nodes.discard(reinterpret_cast<const void*>(storage_done), reinterpret_cast<const void*>(storage_to));
                 storage_done = std::max(storage_done, recycle && spare ? spare + kHuge : storage_to);
-                const size_t area_to = consumed / kPageNodes * kPageNodes;
-                if (area_to > area_done) area.release(area_done, area_to);
+                // Recycling, the area goes in whole 2 MiB, the last kept
+                // for the next huge page the run writes.
+                const size_t area_to = recycle ? consumed / kHugeNodes * kHugeNodes : consumed / kPageNodes * kPageNodes;
+                if (recycle && area_to >= area_done + kHugeNodes) {
+                    if (area_spare != kNone) area.release(area_spare, area_spare + kHugeNodes);
+                    area_spare = area_to - kHugeNodes;
+                    area.release(area_done, area_spare);
+                } else if (area_to > area_done) {
+                    area.release(area_done, area_to);
+                }
                 area_done = std::max(area_done, area_to);
                 released = consumed;
             }
         }
         if (spare) nodes.discard(reinterpret_cast<const void*>(spare), reinterpret_cast<const void*>(spare + kHuge));
+        if (area_spare != kNone) area.release(area_spare, area_spare + kHugeNodes);
     });
     touched.count_untouched();
     return out;
@@ -650,7 +682,8 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
 // placement), which the moves of a tree that fits take back.
 template <class ForEach>
 void place_over_records(std::span<const PlacementArena* const> arenas, const PrimRef* refs, NodeArray& nodes,
-                        ForEach&& for_each, size_t parallel_min = 0, bool front_given_back = false) {
+                        ForEach&& for_each, size_t parallel_min = 0, bool front_given_back = false,
+                        BesideRecordsSizes sizes = {}) {
     PieceRank rank;
     const size_t total = rank_pieces(arenas, rank);
     std::vector<BlockMove> moves;
@@ -673,7 +706,7 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
     } else {
         const size_t groups = total >= parallel_min ? arenas.size() : 1;
         if (!front_given_back) nodes.discard(nodes.data(), refs);  // never written
-        nodes = place_beside_records(moves, refs, *arenas.front()->overflow, nodes, total, groups, for_each);
+        nodes = place_beside_records(moves, refs, *arenas.front()->overflow, nodes, total, groups, for_each, sizes);
     }
     Node* const out = nodes.data();
     for_each(arenas.size(), [&](size_t i) {

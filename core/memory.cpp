@@ -185,17 +185,19 @@ std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes,
     return last - first;
 }
 
-bool move_pages(PageMapping& m, std::size_t offset, void* to, std::size_t bytes) noexcept {
+bool move_pages(PageMapping& m, std::size_t offset, void* to, std::size_t bytes, bool report) noexcept {
 #if defined(MREMAP_DONTUNMAP)
     if (m.p == nullptr || offset % kPage || bytes % kPage || offset + bytes > m.bytes) return false;
     if (mremap(static_cast<char*>(m.p) + offset, bytes, bytes, MREMAP_MAYMOVE | MREMAP_FIXED | MREMAP_DONTUNMAP, to) ==
         MAP_FAILED)
         return false;
-    m.discarded += bytes;
-    report_mapped(-std::ptrdiff_t(bytes));
+    if (report) {
+        m.discarded += bytes;
+        report_mapped(-std::ptrdiff_t(bytes));
+    }
     return true;
 #else
-    (void)m, (void)offset, (void)to, (void)bytes;
+    (void)m, (void)offset, (void)to, (void)bytes, (void)report;
     return false;
 #endif
 }
@@ -211,7 +213,7 @@ bool growable_mappings_available() noexcept { return false; }
 PageMapping map_pages(std::size_t, std::size_t, bool, bool) { throw std::bad_alloc(); }
 void grow_pages(PageMapping&, std::size_t) { throw std::bad_alloc(); }
 std::size_t discard_pages(PageMapping&, std::size_t, std::size_t, bool) noexcept { return 0; }
-bool move_pages(PageMapping&, std::size_t, void*, std::size_t) noexcept { return false; }
+bool move_pages(PageMapping&, std::size_t, void*, std::size_t, bool) noexcept { return false; }
 void unmap_pages(PageMapping& m) noexcept { m = PageMapping{}; }
 #endif
 

@@ -121,7 +121,8 @@ std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes,
 // mapped here, empty); counted as given back here (the caller counts them
 // where they went). Whole huge pages move whole when both ranges are
 // 2 MiB-aligned. Returns false, changing nothing, where the system cannot.
-bool move_pages(PageMapping& m, std::size_t offset, void* to, std::size_t bytes) noexcept;
+// `report` false: for mappings counted by a PageLedger.
+bool move_pages(PageMapping& m, std::size_t offset, void* to, std::size_t bytes, bool report = true) noexcept;
 // Reports the accessible bytes that were not discarded as given back.
 void unmap_pages(PageMapping& m) noexcept;
 // Reports `delta` bytes to the observer (for mappings made uncounted).

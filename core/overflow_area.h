@@ -77,6 +77,18 @@ public:
         if (b > a) discard_pages(mapping_, a, b - a, false);
     }
 
+    // Moves the pages of nodes [from, from + bytes / sizeof(Node)) (whole
+    // pages) to `to`, in another mapping, without copying, and counts them
+    // as given back here (core/memory.h, move_pages()); gives them back
+    // where they cannot move. They must not be read or written again here.
+    bool give(std::size_t from, void* to, std::size_t bytes) noexcept {
+        if (!mapping_.p) return false;
+        const auto [a, b] = ledger_.release(from * sizeof(Node), from * sizeof(Node) + bytes);
+        if (b > a && b - a == bytes && move_pages(mapping_, a, to, bytes, false)) return true;
+        if (b > a) discard_pages(mapping_, a, b - a, false);
+        return false;
+    }
+
 private:
     PageMapping mapping_;
     PageLedger ledger_;
