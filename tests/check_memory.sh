@@ -35,12 +35,13 @@ done
 # NodeArray::expand() in core/node_array.h): 67.2 measured (102.4 when it
 # copied into a second array). The parallel drivers keep the subtrees'
 # nodes past their records in the overflow area and copy the tree into a
-# new array while giving back the storage and the area as they go
-# (place_beside_records() in core/layout.h): 68.2 to 71.4 measured at 1.1M
-# (91.9 when the grown storage and the workers' chunks were held at once,
-# 127 with a fresh array on top), 70.8 to 71.7 at 150,000 (the storage on
-# the heap there). 1.1M: the storage a mapping, the new array on huge pages;
-# 200,000: the storage on the heap, the new array on 4 KiB pages. All build
+# new array while the storage and the area give their pages up as they go
+# (to the new array or back to the system: place_beside_records() in
+# core/layout.h): 70.2 measured at 1.1M, 70.9 at 200,000 (91.9 at 1.1M
+# when the grown storage and the workers' chunks were held at once, 127
+# with a fresh array on top, 132 at 100,000). 1.1M: the storage a mapping,
+# the new array on huge pages, pages moved into it; 200,000: the storage on
+# the heap, the new array on 4 KiB pages. All build
 # the same tree per scene.
 for scene in gen:random:1100000 gen:random:200000; do
   hashes=
