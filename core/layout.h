@@ -120,9 +120,9 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
 //    records [root.begin, root.begin + over_records), which the subtree no
 //    longer needs once it is built, and the nodes after them, when the block
 //    has more nodes than records, in the overflow area from
-//    (*overflow)[root.begin] on, or, when they are fewer than a page of it
-//    (PlacementArena::kSpillMax), in the arena's spill from spill[first]
-//    on (`spilled`).
+//    (*overflow)[root.begin] on, or, when they are few
+//    (PlacementArena::kSpillMax), in the chunks from (chunk, first) as
+//    above (`spilled`).
 //    Block node 0, the subtree's root, is not stored: `root` describes it
 //    (an inner root's first child is block node 1).
 struct SubtreeBlock {
@@ -132,7 +132,7 @@ struct SubtreeBlock {
     uint32_t size = 0;
     uint32_t leaves = 0;
     uint32_t over_records = 0;
-    bool spilled = false;  // over_records: the nodes past them in the arena's spill, from spill[first]
+    bool spilled = false;  // over_records: the nodes past them in the chunks, from (chunk, first)
 };
 
 // A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
@@ -165,11 +165,11 @@ struct PlacementArena {
     // worker's arena).
     OverflowArea* overflow = nullptr;
     // over_records: the nodes past the records of blocks that have fewer
-    // than kSpillMax of them, block after block. Each such block would
-    // bring in a 4 KiB page of the overflow area of its own (a mesh's tree
-    // has a few hundred such blocks); here they share pages.
-    static constexpr uint32_t kSpillMax = 1024;
-    std::vector<Node> spill;
+    // than kSpillMax of them go to the chunks (append()), block after
+    // block, instead of the overflow area, where each such block would
+    // bring in a page or two of its own for a few nodes (a mesh's tree has
+    // a few dozen to a few hundred such blocks).
+    static constexpr uint32_t kSpillMax = 512;
 
     // The chunk a new block starts in: the last one (ChunkedNodes moves on
     // when it is full).
@@ -216,7 +216,6 @@ struct PlacementArena {
             spare.push_back(std::move(c));
         }
         chunks.clear();
-        spill.clear();
         // Largest last, the one new_chunk() looks at.
         std::sort(spare.begin(), spare.end(),
                   [](const NodeChunk& a, const NodeChunk& b) { return a.capacity() < b.capacity(); });
@@ -389,7 +388,11 @@ inline void place_block_body(const PlacementArena& a, const SubtreeBlock& b, con
         move_shifted(reinterpret_cast<const Node*>(refs + b.root.begin), b.over_records, c - 1, dst);
         dst += b.over_records;
         body -= b.over_records;
-        if (body) copy_shifted(b.spilled ? a.spill.data() + b.first : a.overflow->data() + b.root.begin, body, c - 1, dst);
+        if (body == 0) return;
+        if (b.spilled)
+            copy_from_chunks(a, b.chunk, b.first, body, c - 1, dst);
+        else
+            copy_shifted(a.overflow->data() + b.root.begin, body, c - 1, dst);
     } else {
         // The root is the chunks' node (b.chunk, b.first); the body follows.
         copy_from_chunks(a, b.chunk, b.first + 1, body, c - 1, dst);
@@ -570,7 +573,7 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
     // in whole huge pages and the area in whole 2 MiB, each run keeping the
     // last of each for the next huge page it writes; a run takes only huge
     // pages wholly inside its own slots, before it writes them, so no other
-    // run writes there. Measured on the Intel host (2026-12-05): giving
+    // run writes there. Measured on an AMD EPYC host (2026-12-05): giving
     // back part of a huge page splits it, and a fresh huge page is zeroed
     // by the kernel (which at times must compact memory to find one): the
     // placement of 1M random triangles took 11.3 to 12.8 ms that way

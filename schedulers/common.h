@@ -70,8 +70,8 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 // longer needed (its leaves wrote their ids to the permutation), its nodes
 // after the root are copied over them, as many as there are records; the
 // rest (a tree of more nodes than primitives) go to the overflow area at
-// the subtree's range (core/overflow_area.h), or, if they are fewer than a
-// page of it, to the worker's spill.
+// the subtree's range (core/overflow_area.h), or, if they are fewer than
+// PlacementArena::kSpillMax, to the worker's chunks.
 // Those records lie in the final node array's storage, in memory the build
 // has already brought in, and the placement then moves the nodes towards
 // the front of that storage (place_over_records() in core/layout.h): a
@@ -94,8 +94,9 @@ inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& r
         wk.out.overflow->write(root.begin, rest, body - b.over_records);
     } else if (body > b.over_records) {
         b.spilled = true;
-        b.first = static_cast<uint32_t>(wk.out.spill.size());
-        wk.out.spill.insert(wk.out.spill.end(), rest, rest + (body - b.over_records));
+        const auto [chunk, first] = wk.out.append(rest, body - b.over_records);
+        b.chunk = chunk;
+        b.first = first;
     }
     wk.out.blocks.push_back(b);
 }
