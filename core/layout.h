@@ -679,14 +679,9 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
 // triangle at the peak of a 2-thread build of 1M random triangles; then,
 // until the new array, the storage grew in place and the blocks moved up on
 // one thread, with the overflow held whole: 91.9.)
-//
-// `front_given_back`: the caller gave the storage before the records back
-// (NodeArray::discard(); a parallel build does not write there before the
-// placement), which the moves of a tree that fits take back.
 template <class ForEach>
 void place_over_records(std::span<const PlacementArena* const> arenas, const PrimRef* refs, NodeArray& nodes,
-                        ForEach&& for_each, size_t parallel_min = 0, bool front_given_back = false,
-                        BesideRecordsSizes sizes = {}) {
+                        ForEach&& for_each, size_t parallel_min = 0, BesideRecordsSizes sizes = {}) {
     PieceRank rank;
     const size_t total = rank_pieces(arenas, rank);
     std::vector<BlockMove> moves;
@@ -702,13 +697,14 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
         in_place = in_place && at(nodes.data() + m.c) <= at(refs + m.block->root.begin);
     }
     if (in_place) {
-        if (front_given_back) nodes.reclaim(nodes.data(), refs);
         // Within the capacity: no reallocation, and Node() writes nothing.
         nodes.resize(total);
         move_blocks(moves, refs, nodes.data(), total >= parallel_min ? arenas.size() : 1, for_each);
     } else {
         const size_t groups = total >= parallel_min ? arenas.size() : 1;
-        if (!front_given_back) nodes.discard(nodes.data(), refs);  // never written
+        // The storage before the records was never written (a parallel
+        // build writes no node there before the placement).
+        nodes.discard(nodes.data(), refs);
         nodes = place_beside_records(moves, refs, *arenas.front()->overflow, nodes, total, groups, for_each, sizes);
     }
     Node* const out = nodes.data();

@@ -102,8 +102,8 @@ struct PageMapping {
 // At least `bytes` accessible (rounded up to whole pages), in a reservation
 // of at least `reserve` bytes (twice `bytes` if more). `counted` false: the
 // caller reports the mapping's bytes itself (report_mapped_bytes(), e.g.
-// through a TouchCounter as it writes them), all of them before the
-// mapping is unmapped.
+// through a PageLedger as it writes them), all of them before the mapping
+// is unmapped.
 // `huge` false: advised against huge pages instead (memory written sparsely,
 // whose count must follow its 4 KiB pages).
 PageMapping map_pages(std::size_t bytes, std::size_t reserve = 0, bool counted = true, bool huge = true);
@@ -153,7 +153,6 @@ public:
         return at < bytes_ && state_[at / unit_].load(std::memory_order_relaxed) == 0;
     }
     void release_counted() noexcept;
-    std::size_t unit() const noexcept { return unit_; }
 
 private:
     std::size_t bytes_ = 0, unit_ = 1, units_ = 0;

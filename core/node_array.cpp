@@ -16,7 +16,7 @@ void NodeArray::reallocate(std::size_t n, std::size_t keep, bool whole) {
             // and new sizes are never held at once.
             grow_pages(mapping_, bytes);
         } else {
-            PageMapping fresh = map_pages(bytes, reserve_);
+            PageMapping fresh = map_pages(bytes);
             if (keep) std::memcpy(fresh.p, data_, keep * sizeof(Node));
             release();
             mapping_ = fresh;
@@ -43,7 +43,7 @@ void NodeArray::move_to_mapping(std::size_t bytes, std::size_t keep) {
     // while the old storage and that much are more than the new storage
     // (the new one is counted whole in the end), below about 8 MiB.
     const bool huge = bytes >= (std::size_t(8) << 20);
-    PageMapping fresh = map_pages(bytes, reserve_, false, huge);
+    PageMapping fresh = map_pages(bytes, 0, false, huge);
     PageLedger ledger(fresh.bytes, huge ? std::size_t(2) << 20 : 4096, true);
     constexpr std::size_t kPiece = std::size_t(256) << 10;
     const char* const src = reinterpret_cast<const char*>(data_);
@@ -95,16 +95,6 @@ bool NodeArray::give_pages(const void* from, void* to, std::size_t bytes) noexce
     if (!mapped()) return false;
     return move_pages(mapping_, std::size_t(static_cast<const char*>(from) - reinterpret_cast<const char*>(data_)), to,
                       bytes);
-}
-
-void NodeArray::reclaim(const void* from, const void* to) noexcept {
-    const auto first = (reinterpret_cast<std::uintptr_t>(from) + 4095) & ~std::uintptr_t(4095),
-               last = reinterpret_cast<std::uintptr_t>(to) & ~std::uintptr_t(4095);
-    if (data_ == nullptr || first >= last) return;
-    std::size_t& given = mapped() ? mapping_.discarded : heap_discarded_;
-    const std::size_t bytes = std::min<std::size_t>(last - first, given);
-    given -= bytes;
-    report_mapped_bytes(std::ptrdiff_t(bytes));
 }
 
 void NodeArray::release() noexcept {

@@ -43,17 +43,14 @@ public:
     NodeArray() noexcept = default;
     // An array whose storage is a mapping from `bytes` on instead of
     // kMapMin (tests reach the mapped paths with small arrays this way).
-    // `reserve`: the address space its first mapping reserves (at least
-    // twice the mapped bytes), so that it grows in place up to there.
     struct MapFrom {
         std::size_t bytes;
-        std::size_t reserve = 0;
     };
-    explicit NodeArray(MapFrom m) noexcept : map_min_(m.bytes), reserve_(m.reserve) {}
+    explicit NodeArray(MapFrom m) noexcept : map_min_(m.bytes) {}
     // An array of n nodes (not initialised) whose storage is a mapping
     // whatever its size, where the system has them, made without reporting
     // its bytes (core/memory.h): the caller reports them, e.g. through a
-    // TouchCounter as it writes them, all of them before the array lets its
+    // PageLedger as it writes them, all of them before the array lets its
     // storage go. Without mappings, heap storage as usual (mapped() false).
     // `huge` false: advised against huge pages (core/memory.h, map_pages()).
     struct Uncounted {
@@ -127,9 +124,6 @@ public:
     // copying (core/memory.h, move_pages()): they are gone from here like
     // discard()ed ones. False where it cannot (heap storage, the system).
     bool give_pages(const void* from, void* to, std::size_t bytes) noexcept;
-    // Takes back what discard(from, to) gave back, to be written again:
-    // counts it again. [from, to) must be exactly such a range.
-    void reclaim(const void* from, const void* to) noexcept;
     // New nodes are not initialised.
     void resize(std::size_t n) {
         if (n > capacity_) reallocate(std::max(n, 2 * capacity_), size_);
@@ -164,7 +158,6 @@ public:
         std::swap(capacity_, o.capacity_);
         std::swap(mapping_, o.mapping_);
         std::swap(map_min_, o.map_min_);
-        std::swap(reserve_, o.reserve_);
         std::swap(heap_discarded_, o.heap_discarded_);
     }
 
@@ -181,7 +174,6 @@ private:
     std::size_t capacity_ = 0;
     PageMapping mapping_;  // p == data_ when the storage is a mapping
     std::size_t map_min_ = kMapMin;
-    std::size_t reserve_ = 0;
     std::size_t heap_discarded_ = 0;  // heap storage's bytes given back by discard()
 };
 
