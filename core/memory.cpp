@@ -59,20 +59,18 @@ void PageLedger::touch(std::size_t from, std::size_t to) noexcept {
 }
 
 std::pair<std::size_t, std::size_t> PageLedger::release(std::size_t from, std::size_t to) noexcept {
-    const std::size_t first = (from + unit_ - 1) / unit_, last = std::min(to, bytes_) / unit_;
+    // A range that reaches the end takes the last unit, whole or not.
+    const std::size_t first = (from + unit_ - 1) / unit_, last = to >= bytes_ ? units_ : to / unit_;
     if (first >= last) return {0, 0};
     for (std::size_t u = first; u < last; ++u)
-        if (state_[u].exchange(2, std::memory_order_relaxed) == 1) report_mapped(-std::ptrdiff_t(unit_));
-    return {first * unit_, last * unit_};
+        if (state_[u].exchange(2, std::memory_order_relaxed) == 1)
+            report_mapped(-std::ptrdiff_t(std::min(bytes_, (u + 1) * unit_) - u * unit_));
+    return {first * unit_, std::min(bytes_, last * unit_)};
 }
 
 void PageLedger::count_untouched() noexcept { touch(0, bytes_); }
 
-void PageLedger::release_counted() noexcept {
-    for (std::size_t u = 0; u < units_; ++u)
-        if (state_[u].exchange(2, std::memory_order_relaxed) == 1)
-            report_mapped(-std::ptrdiff_t(std::min(bytes_, (u + 1) * unit_) - u * unit_));
-}
+void PageLedger::release_counted() noexcept { (void)release(0, bytes_); }
 
 void set_mapped_bytes_observer(MappedBytesObserver observer) noexcept {
     g_mapped_observer.store(observer, std::memory_order_release);

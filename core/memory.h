@@ -144,8 +144,9 @@ public:
     // Bytes [from, to) are about to be written.
     void touch(std::size_t from, std::size_t to) noexcept;
     // Marks the units wholly inside [from, to) released (reporting those
-    // counted as given back) and returns their byte range, empty if none,
-    // for the caller to give back (discard_pages(..., false)).
+    // counted as given back; a range reaching the end takes the last unit,
+    // whole or not) and returns their byte range, empty if none, for the
+    // caller to give back (discard_pages(..., false)).
     std::pair<std::size_t, std::size_t> release(std::size_t from, std::size_t to) noexcept;
     void count_untouched() noexcept;
     // Whether the unit holding byte `at` is neither counted nor released.
