@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cstdint>
+#include <cerrno>
 #include <cstring>
 #include <new>
 
@@ -183,6 +184,19 @@ std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes,
     return last - first;
 }
 
+void populate_pages(void* p, std::size_t bytes) noexcept {
+#if defined(MADV_POPULATE_WRITE)
+    static std::atomic<bool> unsupported{false};
+    if (p == nullptr || bytes == 0 || unsupported.load(std::memory_order_relaxed)) return;
+    const auto base = reinterpret_cast<std::uintptr_t>(p);
+    const std::uintptr_t first = base / kPage * kPage, last = round_up(base + bytes, kPage);
+    if (madvise(reinterpret_cast<void*>(first), last - first, MADV_POPULATE_WRITE) != 0 && errno == EINVAL)
+        unsupported.store(true, std::memory_order_relaxed);  // a kernel before 5.14
+#else
+    (void)p, (void)bytes;
+#endif
+}
+
 bool move_pages(PageMapping& m, std::size_t offset, void* to, std::size_t bytes, bool report) noexcept {
 #if defined(MREMAP_DONTUNMAP)
     if (m.p == nullptr || offset % kPage || bytes % kPage || offset + bytes > m.bytes) return false;
@@ -212,6 +226,7 @@ PageMapping map_pages(std::size_t, std::size_t, bool, bool) { throw std::bad_all
 void grow_pages(PageMapping&, std::size_t) { throw std::bad_alloc(); }
 std::size_t discard_pages(PageMapping&, std::size_t, std::size_t, bool) noexcept { return 0; }
 bool move_pages(PageMapping&, std::size_t, void*, std::size_t, bool) noexcept { return false; }
+void populate_pages(void*, std::size_t) noexcept {}
 void unmap_pages(PageMapping& m) noexcept { m = PageMapping{}; }
 #endif
 

