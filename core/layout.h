@@ -703,8 +703,9 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
     } else {
         const size_t groups = total >= parallel_min ? arenas.size() : 1;
         // The storage before the records was never written (a parallel
-        // build writes no node there before the placement).
-        nodes.discard(nodes.data(), refs);
+        // build writes no node there before the placement); the overflow
+        // area may have given it back already (OverflowArea::watch_front()).
+        if (!arenas.front()->overflow || !arenas.front()->overflow->front_given()) nodes.discard(nodes.data(), refs);
         nodes = place_beside_records(moves, refs, *arenas.front()->overflow, nodes, total, groups, for_each, sizes);
     }
     Node* const out = nodes.data();

@@ -99,6 +99,7 @@ inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& r
         b.first = first;
     }
     wk.out.blocks.push_back(b);
+    wk.out.overflow->count_block(b.size);
 }
 
 // Runs a whole subtree depth-first on worker `wk` (no further parallelism),
@@ -139,6 +140,14 @@ void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
     PrepareSummary all;
     for (const auto& p : part) all.merge(p);
     st.finish_prepare(all);
+}
+
+// Readies `count` workers for a parallel build of st (after
+// allocate_records_in_tree()): over the records in a one-off build, whose
+// storage's front the overflow area watches (OverflowArea::watch_front()).
+inline void start_workers(BuildState& st, Workers& workers, uint32_t count) {
+    workers.reset(count, st.n, st.options.tuning.chunk_nodes, st.records_in_tree());
+    if (st.records_in_tree()) workers.overflow.watch_front(st.bvh.nodes, st.records);
 }
 
 // Places the recorded nodes and sums the counters (the leaves wrote the

@@ -103,7 +103,7 @@ void omp_build(BuildState& st, uint32_t threads, Body&& body) {
     st.stats.threads_used = threads;
     prepare_parallel(st, threads, OmpLoop{threads});
     Workers& workers = st.workers;
-    workers.reset(threads, st.n, st.options.tuning.chunk_nodes, st.records_in_tree());
+    start_workers(st, workers, threads);
 #pragma omp parallel num_threads(threads)
     {
         body(workers, static_cast<uint32_t>(omp_get_num_threads()));

@@ -37,8 +37,7 @@ struct Tbb {
             sched::prepare_parallel(st, threads, for_each);
             // Slots are indexed by the arena's thread index, unique per thread.
             sched::Workers& workers = st.workers;
-            workers.reset(static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()), st.n,
-                          st.options.tuning.chunk_nodes, st.records_in_tree());
+            sched::start_workers(st, workers, static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
             Builder b{st.context(), st.n, threads, workers};
             b.task(st.root);
             sched::finish_parallel(st, workers, for_each);

@@ -9,6 +9,7 @@
 #include "core/memory.h"
 #include "core/mesh.h"
 #include "core/options.h"
+#include "core/overflow_area.h"
 #include "core/primitives.h"
 #include "core/scene.h"
 #include "core/sah.h"
@@ -1234,6 +1235,42 @@ TEST(BuildMemory, PlacementBesideTheRecordsGivesThemBackAsItGoes) {
             << "peak " << g_mapped_peak.load() << " from " << start.mapped << ", tree " << tree;
         // Afterwards: the tree alone (the storage and the area are gone).
         EXPECT_EQ(g_mapped.load() - before, tree);
+    }
+    EXPECT_EQ(g_mapped.load(), 0);
+    canopy::set_mapped_bytes_observer(nullptr);
+}
+
+TEST(BuildMemory, OverflowAreaGivesTheStorageFrontBackOnceTheTreeCannotFit) {
+    // The records' storage's front (before the records) goes back to the
+    // system once the blocks counted have more nodes than the storage has
+    // slots, once, and the placement then leaves it alone.
+    if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
+    canopy::set_mapped_bytes_observer(observe_mapped);
+    for (const bool map : {false, true}) {
+        canopy::NodeArray storage = map ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
+        storage.reserve(size_t(1) << 15);  // 1 MiB
+        for (size_t i = 0; i < storage.capacity(); ++i) storage.data()[i] = tagged(uint32_t(i));
+        const canopy::Node* records = storage.data() + 4000;  // a front of 125 KiB
+        canopy::OverflowArea area;
+        area.reset(1000);
+        area.watch_front(storage, records);
+        const long long start = g_mapped.load();
+        area.count_block(storage.capacity() / 2);
+        area.count_block(storage.capacity() / 2);  // as many nodes as slots: it may still fit
+        EXPECT_FALSE(area.front_given()) << map;
+        EXPECT_EQ(g_mapped.load(), start) << map;
+        area.count_block(1);
+        EXPECT_TRUE(area.front_given()) << map;
+        const size_t first = (reinterpret_cast<std::uintptr_t>(storage.data()) + 4095) / 4096,
+                     last = reinterpret_cast<std::uintptr_t>(records) / 4096;
+        EXPECT_EQ(g_mapped.load(), start - (long long)((last - first) * 4096)) << map;
+        area.count_block(5000);  // once only
+        EXPECT_EQ(g_mapped.load(), start - (long long)((last - first) * 4096)) << map;
+        // The records and what follows them are kept.
+        for (size_t i = 4000; i < storage.capacity(); ++i) ASSERT_TRUE(has_tag(storage.data()[i], uint32_t(i))) << i;
+        // A new build's area watches nothing until told.
+        area.reset(1000);
+        EXPECT_FALSE(area.front_given()) << map;
     }
     EXPECT_EQ(g_mapped.load(), 0);
     canopy::set_mapped_bytes_observer(nullptr);
