@@ -12,12 +12,13 @@
 // of their subtrees' nodes here, random triangles' trees 0.86 nodes per
 // record. The area is address space until written: 4 KiB pages (no huge
 // pages, which a sparse first write would bring in 2 MiB at a time), each
-// counted when first written (PageLedger).
+// counted when first written (PageLedger). The area also sees every
+// block's size, which tells, before the placement, when the tree cannot
+// fit over its records (watch_front()).
 #pragma once
 
 #include "memory.h"
 #include "node.h"
-
 #include "node_array.h"
 
 #include <atomic>
