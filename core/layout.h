@@ -703,10 +703,11 @@ void place_over_records(std::span<const PlacementArena* const> arenas, const Pri
     } else {
         const size_t groups = total >= parallel_min ? arenas.size() : 1;
         // The storage before the records was never written (a parallel
-        // build writes no node there before the placement); the overflow
-        // area may have given it back already (OverflowArea::watch_front()).
-        if (!arenas.front()->overflow || !arenas.front()->overflow->front_given()) nodes.discard(nodes.data(), refs);
-        nodes = place_beside_records(moves, refs, *arenas.front()->overflow, nodes, total, groups, for_each, sizes);
+        // build writes no node there before the placement): given back,
+        // unless the overflow area has already (OverflowArea::watch_front()).
+        OverflowArea& area = *arenas.front()->overflow;
+        area.give_front(nodes, refs);
+        nodes = place_beside_records(moves, refs, area, nodes, total, groups, for_each, sizes);
     }
     Node* const out = nodes.data();
     for_each(arenas.size(), [&](size_t i) {

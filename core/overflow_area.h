@@ -125,10 +125,16 @@ public:
         if (!front_) return;
         Front& f = *front_;
         const std::uint64_t sum = f.block_nodes.fetch_add(nodes, std::memory_order_relaxed) + nodes;
-        if (sum > f.storage->capacity() && !f.given.exchange(true, std::memory_order_relaxed))
-            f.storage->discard(f.storage->data(), f.records);
+        if (sum > f.storage->capacity()) give_front(*f.storage, f.records);
     }
-    // Whether count_block() gave the front back.
+    // Gives the front of `storage` (before `records`) back, once: unless
+    // count_block() already has (the placement's call, for a tree that does
+    // not fit over its records).
+    void give_front(NodeArray& storage, const void* records) noexcept {
+        if (front_ && front_->given.exchange(true, std::memory_order_relaxed)) return;
+        storage.discard(storage.data(), records);
+    }
+    // Whether the watched front was given back.
     bool front_given() const noexcept { return front_ && front_->given.load(std::memory_order_relaxed); }
 
 private:
