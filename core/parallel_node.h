@@ -136,7 +136,7 @@ public:
     void bin_chunk(uint32_t i) {
         BinSet* b = take_bins();
         const auto [lo, hi] = chunk_range(i);
-        bin(ctx_.refs, lo, hi, m_, *b);
+        bin(ctx_.refs, lo, hi, m_, *b, ctx_.permutation);
         give_back(b);
         if (sizes_) bin_sizes(ctx_.refs, lo, hi, cuts_, chunk_sizes_[i]);
     }
@@ -153,8 +153,8 @@ public:
     // Parallel over [0, 2), SAH splits of a small team: one half of the
     // two-ended partition (kernel.h).
     void partition_half(uint32_t i) {
-        chunk_[i] = i == 0 ? canopy::partition_half<0>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[0])
-                           : canopy::partition_half<1>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[1]);
+        chunk_[i] = i == 0 ? canopy::partition_half<0>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[0], ctx_.permutation)
+                           : canopy::partition_half<1>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[1], ctx_.permutation);
     }
     // Serial, after both halves: swaps the pairs they left.
     void pair_leftovers() { swap_leftovers(ctx_.refs, halves_[0], halves_[1]); }
@@ -163,7 +163,7 @@ public:
     // share of the child bounds.
     void mark_chunk(uint32_t i) {
         const auto [lo, hi] = chunk_range(i);
-        chunk_[i] = mark_sides(ctx_.refs, lo, hi, t_.begin, m_, split_, sides_.data());
+        chunk_[i] = mark_sides(ctx_.refs, lo, hi, t_.begin, m_, split_, sides_.data(), ctx_.permutation);
     }
 
     // Serial, after mark_chunk(): cuts the misplaced pairs into pieces.

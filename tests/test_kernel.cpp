@@ -1048,6 +1048,80 @@ TEST(KernelPartition, HalvesMatchPartitionBitForBit) {
     EXPECT_GT(cases_without, 10u);
 }
 
+TEST(KernelPartition, KeyedSidesMatchPartition) {
+    // bin() with keys writes each record's three bin indices beside it (and
+    // nothing else); partition(), mark_sides() and partition_half() given
+    // those keys leave the records and report the bounds as partition()
+    // does from the centroids. Ranges taking bin()'s one-set path, its
+    // two-set path and several blocks, unaligned to 64; records shuffled and
+    // in order along x; some with a flat axis (index 0 there); 2 to 256 bins.
+    uint32_t splits = 0;
+    for (const uint32_t n : {70u, 300u, 1000u, 5000u}) {
+        for (int order = 0; order < 3; ++order) {
+            std::vector<PrimRef> input = random_refs(n, 300 + n + uint32_t(order), 10.0f, 1.0f);
+            if (order == 1)
+                std::sort(input.begin(), input.end(),
+                          [](const PrimRef& a, const PrimRef& b) { return a.lo.x + a.hi.x < b.lo.x + b.hi.x; });
+            if (order == 2)
+                for (auto& r : input) {
+                    r.hi.y = r.lo.y = -2.0f;
+                    refresh_area(r);
+                }
+            const uint32_t begin = n / 9, end = n - n / 11;
+            const NodeTask t = task_of(input, begin, end);
+            for (const uint32_t nb : {2u, 16u, 256u}) {
+                const BinMapper m = BinMapper::make(t.cbounds, nb);
+                std::vector<uint32_t> keys(n, 0xDEADBEEFu);
+                const auto plain = binned(input, begin, end, m);
+                auto keyed = std::make_unique<BinSet>();
+                keyed->clear(m.bins);
+                canopy::bin(input.data(), begin, end, m, *keyed, keys.data());
+                for (int a = 0; a < 3; ++a)
+                    for (uint32_t b = 0; b < m.bins; ++b) {
+                        ASSERT_EQ(keyed->count(a, b), plain->count(a, b));
+                        ASSERT_EQ(keyed->box(a, b), plain->box(a, b));
+                    }
+                for (uint32_t i = 0; i < n; ++i) {
+                    if (i < begin || i >= end) {
+                        ASSERT_EQ(keys[i], 0xDEADBEEFu) << i;
+                        continue;
+                    }
+                    const std::array<int32_t, 4> k = m.indices(canopy::simd::centroid(canopy::simd::lo(input[i]),
+                                                                                     canopy::simd::hi(input[i])));
+                    ASSERT_EQ(keys[i], uint32_t(k[0]) | uint32_t(k[1]) << 8 | uint32_t(k[2]) << 16) << i;
+                }
+                for_each_plane_split(m, [&](Split s) {
+                    if (s.index % 5 != 1 && s.index + 1 != m.bins) return;  // a sample of the indices
+                    for (uint32_t i = begin; i < end; ++i) s.left_count += left_of(input[i], m, s);
+                    std::vector<PrimRef> want = input, got = input;
+                    const PartitionResult p = canopy::partition(want.data(), begin, end, m, s);
+                    const PartitionResult q = canopy::partition(got.data(), begin, end, m, s, keys.data());
+                    ASSERT_TRUE(same_records(got, want)) << n << " " << nb << " " << s.axis << " " << s.index;
+                    EXPECT_EQ(q.mid, p.mid);
+                    expect_same_children(q, p);
+                    // Both halves of the two-ended partition, then the leftovers.
+                    got = input;
+                    canopy::HalfLeftovers front, back;
+                    PartitionResult h = canopy::partition_half<0>(got.data(), begin, end, m, s, front, keys.data());
+                    h.merge(canopy::partition_half<1>(got.data(), begin, end, m, s, back, keys.data()));
+                    canopy::swap_leftovers(got.data(), front, back);
+                    ASSERT_TRUE(same_records(got, want));
+                    expect_same_children(h, p);
+                    // The sides marked by chunks.
+                    std::vector<uint64_t> sides((end - begin + 63) / 64), plain_sides(sides.size());
+                    const PartitionResult k =
+                        canopy::mark_sides(input.data(), begin, end, begin, m, s, sides.data(), keys.data());
+                    canopy::mark_sides(input.data(), begin, end, begin, m, s, plain_sides.data());
+                    EXPECT_EQ(sides, plain_sides);
+                    expect_same_children(k, p);
+                    ++splits;
+                });
+            }
+        }
+    }
+    EXPECT_GT(splits, 200u);
+}
+
 TEST(KernelPartition, PlanSwapsCutsByRank) {
     // 130 records, mid = 70: sides by hand. Going right in [0, 70): 2, 3, 65,
     // 69; going left in [70, 130): 70, 100, 127, 129.
