@@ -197,6 +197,14 @@ struct MinBox {
         const __m256 sign = _mm256_castsi256_ps(_mm256_set_epi32(0, s, s, s, 0, 0, 0, 0));
         return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), sign);
     }
+    // of() with the record's area kept in lane 7, negated like hi (so box4()
+    // has the largest area in lane 3 of hi): what the bins hold.
+    static __m256 with_area(const PrimRef& r) {
+        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(-1, -1, -1, -1, 0, -1, -1, -1));
+        constexpr int32_t s = std::numeric_limits<int32_t>::min();
+        const __m256 sign = _mm256_castsi256_ps(_mm256_set_epi32(s, s, s, s, 0, 0, 0, 0));
+        return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), sign);
+    }
     void grow(__m256 x) { v = _mm256_min_ps(v, x); }
     void grow(const MinBox& o) { grow(o.v); }
     Box4 box4() const { return Box4{_mm256_castps256_ps128(v), negate(_mm256_extractf128_ps(v, 1))}; }
@@ -207,10 +215,11 @@ struct MinBox {
     // keep their count there (see BinArrays). That operand order is the
     // reverse of grow()'s, which matters only on a tie of +0 and -0: the
     // records hold no -0 (prepare makes it +0), so the boxes are the same.
+    // Lane 7 holds the negated area, as with_area().
     static __m256 counted(const PrimRef& r) {
-        const __m256 keep = xyz_mask2();
+        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(-1, -1, -1, -1, 0, -1, -1, -1));
         constexpr int32_t s = std::numeric_limits<int32_t>::min();
-        const __m256 flip = _mm256_castsi256_ps(_mm256_set_epi32(0, s, s, s, -1, 0, 0, 0));
+        const __m256 flip = _mm256_castsi256_ps(_mm256_set_epi32(s, s, s, s, -1, 0, 0, 0));
         return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), flip);
     }
 #endif
@@ -224,6 +233,7 @@ struct MinBox {
     static Packed of(const PrimRef& r) {
         return {simd::lo(r), negate(simd::hi(r))};
     }
+    static Packed with_area(const PrimRef& r) { return {simd::lo(r), negate(simd::hi_area(r))}; }
     void grow(const Packed& x) {
         lo = _mm_min_ps(lo, x.lo);
         nhi = _mm_min_ps(nhi, x.nhi);
@@ -404,7 +414,8 @@ struct BinMapper {
     uint32_t index(const Vec3& c, int axis) const { return static_cast<uint32_t>(indices(simd::vec(c))[axis]); }
 };
 
-// Per-axis bins: the box of the primitives and their count.
+// Per-axis bins: the box of the primitives, their largest area (lane 3 of
+// the box's hi, see MinBox::with_area()) and their count.
 //
 // With AVX2 a bin's count is kept in lane 3 of its box (the lo half's spare
 // lane) as an integer: an update is one minimum (MinBox::counted() leaves
@@ -485,7 +496,7 @@ struct BinArrays {
     }
 #else
     static simd::MinBox empty() { return simd::MinBox{}; }
-    static auto record(const PrimRef& x) { return simd::MinBox::of(x); }
+    static auto record(const PrimRef& x) { return simd::MinBox::with_area(x); }
     template <class Rec>  // record()
     void add(int axis, int32_t k, const Rec& rec) {
         at(axis, uint32_t(k)).grow(rec);
@@ -1215,13 +1226,11 @@ struct SideTest {
 // same indices as evaluate() counted, so the same sides as SideIndexTest
 // and SideTest. Eight records a step from 32 bytes of keys, where SideTest
 // gathers the split axis's coordinates from 512 bytes of records and forms
-// their centroids. run_node() and the team-parallel node keep the keys in
-// the permutation's slots of the node's range (free until the node's
-// leaves write them). Alternated processes of the old and new binaries, 7
-// rounds of `canopy build --repeat 5`, medians of per-round ratios, on the
-// AMD EPYC host of 2026-12-05: sequential 1M sphere 0.971x-0.974x as long,
-// dragon_vrip_res2 0.970x, 1M random 0.954x; tbb at 2 threads 1M sphere
-// 0.989x-0.998x, dragon 0.994x, 1M random 0.988x, omp_tasks 1M sphere 0.987x.
+// their centroids. A partition by keys (partition_by_keys(), and the
+// team-parallel node's) reads no record but the misplaced ones it swaps:
+// the children's bounds come from the bins (bounds_from_bins()).
+// run_node() and the team-parallel node keep the keys in the permutation's
+// slots of the node's range (free until the node's leaves write them).
 struct KeyTest {
     const uint32_t* keys;
     const PrimRef* refs;
@@ -1231,6 +1240,7 @@ struct KeyTest {
         : keys(k), refs(r), shift(8 * uint32_t(s.axis)), index(s.index) {}
     bool left_at(const uint32_t* q) const { return ((*q >> shift) & 0xFFu) < index; }
 };
+
 
 // The side test of a size split: primitives whose area is below the cut go
 // left, the large ones right.
@@ -1245,8 +1255,11 @@ struct SizeTest {
 // Calls f with the split's side test (one dispatch per node, not per record).
 // With keys (bin() wrote them for refs), a plane split's sides are read from
 // them.
+// With keys (of a plane split), KeyTest: the caller takes the children's
+// bounds from the bins.
 template <class F>
-decltype(auto) with_side_test(const BinMapper& m, const Split& s, const uint32_t* keys, const PrimRef* refs, F&& f) {
+decltype(auto) with_side_test(const BinMapper& m, const Split& s, const uint32_t* keys, const PrimRef* refs,
+                              F&& f) {
     if (s.by_size()) return f(SizeTest(s));
     if (keys) return f(KeyTest(keys, refs, s));
     return f(SideTest(m, s));
@@ -1405,12 +1418,17 @@ inline void grow_side(const PrimRef* r, uint64_t bits, ChildBounds4& acc) {
 
 // The side mask of a block of n <= kSideBlock records, with their bounds
 // grown into the side each goes to.
+// (KeyTest: the mask alone, see there.)
 template <class Test>
 inline uint64_t mark_block(const PrimRef* r, uint32_t n, const Test& side, ChildBounds4& acc) {
-    const uint64_t left = left_mask(r, n, side);
-    grow_side<0>(r, left, acc);
-    grow_side<1>(r, ~left & block_bits(n), acc);
-    return left;
+    if constexpr (std::is_same_v<Test, KeyTest>) {
+        return left_mask(r, n, side);
+    } else {
+        const uint64_t left = left_mask(r, n, side);
+        grow_side<0>(r, left, acc);
+        grow_side<1>(r, ~left & block_bits(n), acc);
+        return left;
+    }
 }
 
 inline void swap_refs(PrimRef& a, PrimRef& b) {
@@ -1481,15 +1499,21 @@ PartitionResult partition_with(PrimRef* refs, uint32_t b, uint32_t mid, uint32_t
     return partition_with(refs, b, mid, e, SizeTest(s));
 }
 
-inline PartitionResult partition(PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, const Split& s,
-                                 const uint32_t* keys = nullptr) {
+inline PartitionResult partition(PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, const Split& s) {
     const uint32_t mid = begin + s.left_count;
     if (s.by_size()) return partition_by_size(refs, begin, mid, end, s);
-    if (keys) return partition_with(refs, begin, mid, end, KeyTest(keys, refs, s));
     if (end - begin < kThresholdTestMin)
         return m.prescaled ? partition_with(refs, begin, mid, end, SideIndexTest<true>(m, s))
                            : partition_with(refs, begin, mid, end, SideIndexTest<false>(m, s));
     return partition_with(refs, begin, mid, end, SideTest(m, s));
+}
+
+// The records of partition() of plane split s, the sides read from the keys
+// bin() wrote (KeyTest): the result has the right child's start but no
+// bounds (bounds_from_bins() gives them).
+inline PartitionResult partition_by_keys(PrimRef* refs, uint32_t begin, uint32_t end, const Split& s,
+                                         const uint32_t* keys) {
+    return partition_with(refs, begin, begin + s.left_count, end, KeyTest(keys, refs, s));
 }
 
 // partition() of a plane split of a node of at most kBinBlock records right
@@ -1722,6 +1746,64 @@ inline PartitionResult middle_split(const PrimRef* refs, uint32_t begin, uint32_
     grow_range(refs, begin, mid, acc, 0);
     grow_range(refs, mid, end, acc, 1);
     return result_of(acc, mid);
+}
+
+// After a partition by keys of node t by plane split s (mapping m), the
+// children's bounds from the node's bins: each child's box and largest area
+// from the bins of the split axis (bins [0, s.index) hold the left child's
+// records, the others the right child's), bit for bit as a partition grows
+// them from the records. Each child's centroid bounds are a box holding its
+// centroids: its box, within the node's centroid bounds, and on the split
+// axis within the child's non-empty bins there (widened by a margin above
+// the mapping's roundings). Not the tight box of the centroids a partition
+// grows, so the children's mappings differ by up to half a primitive's
+// extent on the other axes, and by less than a bin width on the split axis;
+// on the meshes of ../shared/scenes the trees' SAH moved by -0.19% to
+// +0.12%. (Taking the children's bounds on the split axis as loosely as on
+// the others, Šibenik's tree was 3.9% worse.) Should a centroid round
+// outside, BinMapper clamps it into the first or last bin.
+inline void bounds_from_bins(const BinArrays& bins, const BinMapper& m, const NodeTask& t, const Split& s,
+                             PartitionResult& p) {
+    const int axis = s.axis;
+    simd::MinBox side[2] = {BinArrays::empty(), BinArrays::empty()};
+    for (uint32_t b = 0; b < m.bins; ++b) side[b >= s.index].grow(bins.at(axis, b));
+    Box c[2];
+    for (int k = 0; k < 2; ++k) {
+        p.acc.bounds[k] = side[k].box4();
+        const Box b = p.acc.bounds[k].box();
+        c[k] = Box{glm::max(b.lo, t.cbounds.lo), glm::min(b.hi, t.cbounds.hi)};
+    }
+    // The non-empty bins of each side: [first, lmax] left, [rmin, last]
+    // right (both sides hold records).
+    uint32_t first = 0, lmax = s.index - 1, rmin = s.index, last = m.bins - 1;
+    while (bins.count(axis, first) == 0) ++first;
+    while (bins.count(axis, lmax) == 0) --lmax;
+    while (bins.count(axis, rmin) == 0) ++rmin;
+    while (bins.count(axis, last) == 0) --last;
+    const double w = 1.0 / double(m.scale[axis]);  // a bin's width
+    const double o = double(m.origin[axis]);
+    const double big = std::max(std::abs(o), std::abs(o + double(m.bins) * w));
+    // Bins k..l span [o + k w, o + (l + 1) w], give or take the mapping's
+    // roundings: a few float ulps of the coordinates and of the extent, well
+    // inside `margin` where bins are wide against the coordinates (not
+    // narrowed otherwise, nor for a prescaled mapping).
+    if (m.prescale[axis] == 1.0f && w >= 0x1p-20 * big) {
+        const double margin = 0x1p-21 * (big + double(m.bins) * w);
+        const uint32_t from[2] = {first, rmin}, to[2] = {lmax, last};
+        for (int k = 0; k < 2; ++k) {
+            c[k].lo[axis] = std::max(c[k].lo[axis], float(o + double(from[k]) * w - margin));
+            c[k].hi[axis] = std::min(c[k].hi[axis], float(o + double(to[k] + 1) * w + margin));
+        }
+    }
+    for (int k = 0; k < 2; ++k) {
+        for (int a = 0; a < 3; ++a)
+            if (!(c[k].lo[a] <= c[k].hi[a])) {  // cannot happen while the boxes hold the centroids
+                const Box b = p.acc.bounds[k].box();
+                c[k].lo[a] = b.lo[a];
+                c[k].hi[a] = b.hi[a];
+            }
+        p.acc.cbounds[k] = simd::Box4::of(c[k]);
+    }
 }
 
 // Step 4: the two child tasks of a split node.
@@ -1976,7 +2058,7 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
         } else {
             skip.axes_not_binned += 3 - m.valid_count();
             bins.clear(m.bins);
-            // Nodes partitioned from their keys (larger than kBinBlock) get
+            // Nodes partitioned by their keys (larger than kBinBlock) get
             // them in the permutation's slots of their range, which only
             // their leaves write, later.
             uint32_t* const keys = t.size() > kBinBlock ? ctx.permutation : nullptr;
@@ -1996,8 +2078,14 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
                 return false;
             }
             if (s.found()) {
-                part = t.size() <= kBinBlock && !s.by_size() ? partition_binned(ctx.refs, t.begin, t.end, s, bins)
-                                                             : partition(ctx.refs, t.begin, t.end, m, s, keys);
+                if (s.by_size()) {
+                    part = partition(ctx.refs, t.begin, t.end, m, s);
+                } else if (t.size() <= kBinBlock) {
+                    part = partition_binned(ctx.refs, t.begin, t.end, s, bins);
+                } else {
+                    part = partition_by_keys(ctx.refs, t.begin, t.end, s, keys);
+                    bounds_from_bins(bins, m, t, s, part);
+                }
             } else {
                 part = middle_split(ctx.refs, t.begin, t.end);
             }

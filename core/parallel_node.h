@@ -150,11 +150,16 @@ public:
     // pair_leftovers()) rather than by mark_chunk() and swap_piece() (see
     // kTeamPartitionMin).
     bool partitions_by_halves() const { return team_ < kTeamPartitionMin; }
+    // Whether the sides come from the keys bin_chunk() wrote and the
+    // children's bounds from the bins, as run_node() does for a plane split
+    // of more than kBinBlock records.
+    bool from_bins() const { return !split_.by_size() && t_.size() > kBinBlock; }
+    const uint32_t* keys() const { return from_bins() ? ctx_.permutation : nullptr; }
     // Parallel over [0, 2), SAH splits of a small team: one half of the
     // two-ended partition (kernel.h).
     void partition_half(uint32_t i) {
-        chunk_[i] = i == 0 ? canopy::partition_half<0>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[0], ctx_.permutation)
-                           : canopy::partition_half<1>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[1], ctx_.permutation);
+        chunk_[i] = i == 0 ? canopy::partition_half<0>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[0], keys())
+                           : canopy::partition_half<1>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[1], keys());
     }
     // Serial, after both halves: swaps the pairs they left.
     void pair_leftovers() { swap_leftovers(ctx_.refs, halves_[0], halves_[1]); }
@@ -163,7 +168,7 @@ public:
     // share of the child bounds.
     void mark_chunk(uint32_t i) {
         const auto [lo, hi] = chunk_range(i);
-        chunk_[i] = mark_sides(ctx_.refs, lo, hi, t_.begin, m_, split_, sides_.data(), ctx_.permutation);
+        chunk_[i] = mark_sides(ctx_.refs, lo, hi, t_.begin, m_, split_, sides_.data(), keys());
     }
 
     // Serial, after mark_chunk(): cuts the misplaced pairs into pieces.
@@ -189,6 +194,7 @@ public:
         PartitionResult r;
         for (const PartitionResult& c : chunk_) r.merge(c);
         r.mid = t_.begin + (moves() ? split_.left_count : t_.size() / 2);
+        if (moves() && from_bins()) bounds_from_bins(*bin_pool_[0], m_, t_, split_, r);
         emit(t_, r, children);
     }
 

@@ -1050,11 +1050,15 @@ TEST(KernelPartition, HalvesMatchPartitionBitForBit) {
 
 TEST(KernelPartition, KeyedSidesMatchPartition) {
     // bin() with keys writes each record's three bin indices beside it (and
-    // nothing else); partition(), mark_sides() and partition_half() given
-    // those keys leave the records and report the bounds as partition()
-    // does from the centroids. Ranges taking bin()'s one-set path, its
-    // two-set path and several blocks, unaligned to 64; records shuffled and
-    // in order along x; some with a flat axis (index 0 there); 2 to 256 bins.
+    // nothing else); partition_by_keys(), mark_sides() and partition_half()
+    // given those keys move the records as partition() does from the
+    // centroids; bounds_from_bins() then gives the children's boxes and
+    // largest areas bit for bit as partition() grows them, and centroid
+    // bounds that hold the children's centroids, within the child's box and
+    // the node's centroid bounds, and on the split axis within the child's
+    // bins. Ranges taking bin()'s one-set path, its two-set path and several
+    // blocks, unaligned to 64; records shuffled and in order along x; some
+    // with a flat axis (index 0 there); 2 to 256 bins.
     uint32_t splits = 0;
     for (const uint32_t n : {70u, 300u, 1000u, 5000u}) {
         for (int order = 0; order < 3; ++order) {
@@ -1093,27 +1097,44 @@ TEST(KernelPartition, KeyedSidesMatchPartition) {
                 for_each_plane_split(m, [&](Split s) {
                     if (s.index % 5 != 1 && s.index + 1 != m.bins) return;  // a sample of the indices
                     for (uint32_t i = begin; i < end; ++i) s.left_count += left_of(input[i], m, s);
+                    if (s.left_count == 0 || s.left_count == end - begin) return;
                     std::vector<PrimRef> want = input, got = input;
                     const PartitionResult p = canopy::partition(want.data(), begin, end, m, s);
-                    const PartitionResult q = canopy::partition(got.data(), begin, end, m, s, keys.data());
+                    PartitionResult q = canopy::partition_by_keys(got.data(), begin, end, s, keys.data());
                     ASSERT_TRUE(same_records(got, want)) << n << " " << nb << " " << s.axis << " " << s.index;
                     EXPECT_EQ(q.mid, p.mid);
-                    expect_same_children(q, p);
+                    canopy::bounds_from_bins(*keyed, m, t, s, q);
+                    EXPECT_EQ(q.left_bounds(), p.left_bounds());
+                    EXPECT_EQ(q.right_bounds(), p.right_bounds());
+                    EXPECT_EQ(q.left_max_area(), p.left_max_area());
+                    EXPECT_EQ(q.right_max_area(), p.right_max_area());
+                    const double width = 1.0 / double(m.scale[s.axis]);
+                    for (int side = 0; side < 2; ++side) {
+                        const Box got_c = side ? q.right_cbounds() : q.left_cbounds();
+                        const Box true_c = side ? p.right_cbounds() : p.left_cbounds();
+                        const Box box = side ? p.right_bounds() : p.left_bounds();
+                        for (int a = 0; a < 3; ++a) {
+                            EXPECT_LE(got_c.lo[a], true_c.lo[a]);
+                            EXPECT_GE(got_c.hi[a], true_c.hi[a]);
+                            EXPECT_GE(got_c.lo[a], std::max(box.lo[a], t.cbounds.lo[a]));
+                            EXPECT_LE(got_c.hi[a], std::min(box.hi[a], t.cbounds.hi[a]));
+                        }
+                        // On the split axis, within a bin of the centroids.
+                        EXPECT_LE(double(true_c.lo[s.axis]) - double(got_c.lo[s.axis]), width * 1.01);
+                        EXPECT_LE(double(got_c.hi[s.axis]) - double(true_c.hi[s.axis]), width * 1.01);
+                    }
                     // Both halves of the two-ended partition, then the leftovers.
                     got = input;
                     canopy::HalfLeftovers front, back;
-                    PartitionResult h = canopy::partition_half<0>(got.data(), begin, end, m, s, front, keys.data());
-                    h.merge(canopy::partition_half<1>(got.data(), begin, end, m, s, back, keys.data()));
+                    canopy::partition_half<0>(got.data(), begin, end, m, s, front, keys.data());
+                    canopy::partition_half<1>(got.data(), begin, end, m, s, back, keys.data());
                     canopy::swap_leftovers(got.data(), front, back);
                     ASSERT_TRUE(same_records(got, want));
-                    expect_same_children(h, p);
                     // The sides marked by chunks.
                     std::vector<uint64_t> sides((end - begin + 63) / 64), plain_sides(sides.size());
-                    const PartitionResult k =
-                        canopy::mark_sides(input.data(), begin, end, begin, m, s, sides.data(), keys.data());
+                    canopy::mark_sides(input.data(), begin, end, begin, m, s, sides.data(), keys.data());
                     canopy::mark_sides(input.data(), begin, end, begin, m, s, plain_sides.data());
                     EXPECT_EQ(sides, plain_sides);
-                    expect_same_children(k, p);
                     ++splits;
                 });
             }
@@ -1368,13 +1389,19 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
         NodeTask children[2];
         ASSERT_TRUE(canopy::run_node(ctx, t, children, *bins, skip));
 
-        // The same by hand.
+        // The same by hand: a node of more than kBinBlock records is
+        // partitioned by its keys and its children's bounds come from the bins.
+        static_assert(180 - 20 > canopy::kBinBlock);
         const BinMapper m = BinMapper::make(t.cbounds, canopy::bins_for(t.size(), buf.opt.bins));
-        const auto b = binned(input, 20, 180, m);
+        std::vector<uint32_t> keys(200);
+        auto b = std::make_unique<BinSet>();
+        b->clear(m.bins);
+        canopy::bin(input.data(), 20, 180, m, *b, keys.data());
         const Split s = canopy::evaluate(*b, m, t.bounds, buf.opt);
         ASSERT_TRUE(s.found());
         std::vector<PrimRef> expected = input;
-        const PartitionResult p = canopy::partition(expected.data(), 20, 180, m, s);
+        PartitionResult p = canopy::partition_by_keys(expected.data(), 20, 180, s, keys.data());
+        canopy::bounds_from_bins(*b, m, t, s, p);
         EXPECT_TRUE(same_records(buf.a, expected));
         EXPECT_FALSE(same_records(buf.a, input));
         EXPECT_EQ(children[0].end, p.mid);
@@ -1382,6 +1409,12 @@ TEST(KernelRunNode, SahSplitMatchesTheSteps) {
         EXPECT_EQ(children[1].end, 180u);
         EXPECT_EQ(children[0].bounds, p.left_bounds());
         EXPECT_EQ(children[1].cbounds, p.right_cbounds());
+        // The plain partition moves the same records and grows the same boxes.
+        std::vector<PrimRef> plain = input;
+        const PartitionResult q = canopy::partition(plain.data(), 20, 180, m, s);
+        EXPECT_TRUE(same_records(plain, expected));
+        EXPECT_EQ(children[0].bounds, q.left_bounds());
+        EXPECT_EQ(children[1].bounds, q.right_bounds());
         EXPECT_EQ(children[0].depth, 3u);
         EXPECT_EQ(children[0].rights, 1);
         EXPECT_EQ(children[1].rights, 2);
