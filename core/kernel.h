@@ -2023,79 +2023,75 @@ inline void write_leaf(const KernelContext& ctx, const NodeTask& t) {
 // `children`. `bins` is per-worker scratch.
 inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask children[2],
                      BinSet& bins, SkipCounts& skip) {
+    // Each split emits straight from the partition's result, which the
+    // partition writes in place (no PartitionResult assigned across the
+    // branches: GCC copied it with 64-byte moves, which cannot forward from
+    // the partition's 16-byte stores, and emit()'s 4-byte loads then stalled
+    // on the copy; about a tenth of run_node()'s own samples).
+    const auto split = [&](const PartitionResult& part) {
+        emit(t, part, children);
+        return true;
+    };
     const BuildOptions& opt = *ctx.options;
     const Plan p = plan(t, opt, skip);
-    PartitionResult part;
-    if (p == Plan::Middle) {
-        part = middle_split(ctx.refs, t.begin, t.end);
-    } else if (p == Plan::Sah) {
-        if (t.size() <= opt.max_leaf && leaf_by_bound(ctx.refs, t, opt)) {
-            ++skip.bound_leaves;
-            write_leaf(ctx, t);
-            return false;
-        }
-        if (t.size() <= kExactMaxPrims) {
-            ++skip.exact_nodes;
-            uint32_t left = 0;
-            double cost = 0.0;
-            const bool found = exact_split(ctx.refs + t.begin, t.size(), t.bounds, opt, left, cost);
-            if (sah_says_leaf(found, cost, t.size(), opt)) {
-                write_leaf(ctx, t);
-                return false;
-            }
-            part = found ? partition_by_mask(ctx.refs, t.begin, t.end, left) : middle_split(ctx.refs, t.begin, t.end);
-            emit(t, part, children);
-            return true;
-        }
-        const BinMapper m = BinMapper::make(t.cbounds, bins_for(t.size(), opt.bins));
-        if (!m.any_valid()) {
-            ++skip.coincident_nodes;
-            if (t.size() <= opt.max_leaf) {
-                write_leaf(ctx, t);
-                return false;
-            }
-            part = middle_split(ctx.refs, t.begin, t.end);
-        } else {
-            skip.axes_not_binned += 3 - m.valid_count();
-            bins.clear(m.bins);
-            // Nodes partitioned by their keys (larger than kBinBlock) get
-            // them in the permutation's slots of their range, which only
-            // their leaves write, later.
-            uint32_t* const keys = t.size() > kBinBlock ? ctx.permutation : nullptr;
-            bin(ctx.refs, t.begin, t.end, m, bins, keys);
-            Split s = evaluate(bins, m, t.bounds, opt);
-            if (t.size() >= kSizeSplitMinPrims) {
-                const SizeCuts cuts = SizeCuts::of(t.bounds);
-                if (cuts.applies(t)) {
-                    SizeBins sizes;
-                    bin_sizes(ctx.refs, t.begin, t.end, cuts, sizes);
-                    consider_size_split(sizes, cuts, t.bounds, opt, s);
-                    skip.size_splits += s.by_size();
-                }
-            }
-            if (sah_says_leaf(s, t.size(), opt)) {
-                write_leaf(ctx, t);
-                return false;
-            }
-            if (s.found()) {
-                if (s.by_size()) {
-                    part = partition(ctx.refs, t.begin, t.end, m, s);
-                } else if (t.size() <= kBinBlock) {
-                    part = partition_binned(ctx.refs, t.begin, t.end, s, bins);
-                } else {
-                    part = partition_by_keys(ctx.refs, t.begin, t.end, s, keys);
-                    bounds_from_bins(bins, m, t, s, part);
-                }
-            } else {
-                part = middle_split(ctx.refs, t.begin, t.end);
-            }
-        }
-    } else {
+    if (p == Plan::Middle) return split(middle_split(ctx.refs, t.begin, t.end));
+    if (p != Plan::Sah) {
         write_leaf(ctx, t);
         return false;
     }
-    emit(t, part, children);
-    return true;
+    if (t.size() <= opt.max_leaf && leaf_by_bound(ctx.refs, t, opt)) {
+        ++skip.bound_leaves;
+        write_leaf(ctx, t);
+        return false;
+    }
+    if (t.size() <= kExactMaxPrims) {
+        ++skip.exact_nodes;
+        uint32_t left = 0;
+        double cost = 0.0;
+        const bool found = exact_split(ctx.refs + t.begin, t.size(), t.bounds, opt, left, cost);
+        if (sah_says_leaf(found, cost, t.size(), opt)) {
+            write_leaf(ctx, t);
+            return false;
+        }
+        return found ? split(partition_by_mask(ctx.refs, t.begin, t.end, left))
+                     : split(middle_split(ctx.refs, t.begin, t.end));
+    }
+    const BinMapper m = BinMapper::make(t.cbounds, bins_for(t.size(), opt.bins));
+    if (!m.any_valid()) {
+        ++skip.coincident_nodes;
+        if (t.size() <= opt.max_leaf) {
+            write_leaf(ctx, t);
+            return false;
+        }
+        return split(middle_split(ctx.refs, t.begin, t.end));
+    }
+    skip.axes_not_binned += 3 - m.valid_count();
+    bins.clear(m.bins);
+    // Nodes partitioned by their keys (larger than kBinBlock) get them in
+    // the permutation's slots of their range, which only their leaves
+    // write, later.
+    uint32_t* const keys = t.size() > kBinBlock ? ctx.permutation : nullptr;
+    bin(ctx.refs, t.begin, t.end, m, bins, keys);
+    Split s = evaluate(bins, m, t.bounds, opt);
+    if (t.size() >= kSizeSplitMinPrims) {
+        const SizeCuts cuts = SizeCuts::of(t.bounds);
+        if (cuts.applies(t)) {
+            SizeBins sizes;
+            bin_sizes(ctx.refs, t.begin, t.end, cuts, sizes);
+            consider_size_split(sizes, cuts, t.bounds, opt, s);
+            skip.size_splits += s.by_size();
+        }
+    }
+    if (sah_says_leaf(s, t.size(), opt)) {
+        write_leaf(ctx, t);
+        return false;
+    }
+    if (!s.found()) return split(middle_split(ctx.refs, t.begin, t.end));
+    if (s.by_size()) return split(partition(ctx.refs, t.begin, t.end, m, s));
+    if (t.size() <= kBinBlock) return split(partition_binned(ctx.refs, t.begin, t.end, s, bins));
+    PartitionResult part = partition_by_keys(ctx.refs, t.begin, t.end, s, keys);
+    bounds_from_bins(bins, m, t, s, part);
+    return split(part);
 }
 
 }  // namespace canopy
