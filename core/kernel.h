@@ -126,6 +126,8 @@ inline __m128 centroid(__m128 lo, __m128 hi) {
 #if defined(__AVX__)
 // xyz_mask() in both 128-bit halves.
 inline __m256 xyz_mask2() { return _mm256_castsi256_ps(_mm256_set_epi32(0, -1, -1, -1, 0, -1, -1, -1)); }
+// Lanes 0-2 and 4-7 (a record's lo, hi and area; not its id).
+inline __m256 xyz_area_mask2() { return _mm256_castsi256_ps(_mm256_set_epi32(-1, -1, -1, -1, 0, -1, -1, -1)); }
 // centroid() of two boxes at once, one in each 128-bit half (lane 3 of lo
 // and hi cleared): lane for lane the same IEEE operations.
 inline __m256 centroid2(__m256 lo, __m256 hi) {
@@ -200,7 +202,7 @@ struct MinBox {
     // of() with the record's area kept in lane 7, negated like hi (so box4()
     // has the largest area in lane 3 of hi): what the bins hold.
     static __m256 with_area(const PrimRef& r) {
-        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(-1, -1, -1, -1, 0, -1, -1, -1));
+        const __m256 keep = xyz_area_mask2();
         constexpr int32_t s = std::numeric_limits<int32_t>::min();
         const __m256 sign = _mm256_castsi256_ps(_mm256_set_epi32(s, s, s, s, 0, 0, 0, 0));
         return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), sign);
@@ -217,7 +219,7 @@ struct MinBox {
     // records hold no -0 (prepare makes it +0), so the boxes are the same.
     // Lane 7 holds the negated area, as with_area().
     static __m256 counted(const PrimRef& r) {
-        const __m256 keep = _mm256_castsi256_ps(_mm256_set_epi32(-1, -1, -1, -1, 0, -1, -1, -1));
+        const __m256 keep = xyz_area_mask2();
         constexpr int32_t s = std::numeric_limits<int32_t>::min();
         const __m256 flip = _mm256_castsi256_ps(_mm256_set_epi32(s, s, s, s, -1, 0, 0, 0));
         return _mm256_xor_ps(_mm256_and_ps(_mm256_loadu_ps(&r.lo.x), keep), flip);
@@ -702,8 +704,6 @@ inline void merged_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, c
     if (i < n) update(s0, r[i], k[i]);
 }
 
-// bin() over blocks of records; Two: every other record into out.odd;
-// Pre: the mapping's prescale is applied (see BinMapper::indices4).
 // Writes the bin keys (see bin()) of a block of n records whose indices are
 // in k to out[0, n).
 inline void store_keys(const int32_t (*k)[4], uint32_t n, uint32_t* out) {
@@ -723,6 +723,9 @@ inline void store_keys(const int32_t (*k)[4], uint32_t n, uint32_t* out) {
     for (; i < n; ++i) out[i] = uint32_t(k[i][0]) | uint32_t(k[i][1]) << 8 | uint32_t(k[i][2]) << 16;
 }
 
+// bin() over blocks of records; Two: every other record into out.odd;
+// Pre: the mapping's prescale is applied (see BinMapper::indices4); keys:
+// see bin().
 template <bool Two, bool Pre>
 inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out,
                        uint32_t* keys) {
@@ -1241,7 +1244,6 @@ struct KeyTest {
     bool left_at(const uint32_t* q) const { return ((*q >> shift) & 0xFFu) < index; }
 };
 
-
 // The side test of a size split: primitives whose area is below the cut go
 // left, the large ones right.
 struct SizeTest {
@@ -1254,9 +1256,8 @@ struct SizeTest {
 
 // Calls f with the split's side test (one dispatch per node, not per record).
 // With keys (bin() wrote them for refs), a plane split's sides are read from
-// them.
-// With keys (of a plane split), KeyTest: the caller takes the children's
-// bounds from the bins.
+// them (KeyTest, which grows no bounds: the caller takes the children's
+// bounds from the bins).
 template <class F>
 decltype(auto) with_side_test(const BinMapper& m, const Split& s, const uint32_t* keys, const PrimRef* refs,
                               F&& f) {
@@ -1301,7 +1302,8 @@ inline bool goes_left(const PrimRef& r, const BinMapper& m, const Split& s) {
 // 0.77x, 1M random triangles 0.71x; the 1M sphere 1.02x).
 inline constexpr uint32_t kSideBlock = 64;
 
-// Bit k set: record r[k] goes left (n <= kSideBlock). No branch.
+// Bit k set: record r[k] goes left (n <= kSideBlock). No branch. With
+// KeyTest from the records' keys, eight at a time (the records are not read).
 //
 // With AVX2, a whole block of a plane split takes the split axis's
 // coordinates of eight records at a time (their lo and hi lanes loaded into
@@ -1329,27 +1331,27 @@ uint64_t left_mask(const PrimRef* r, uint32_t n, const Test& side) {
         return mask;
     } else {
 #if defined(__AVX2__)
-    if constexpr (!std::is_same_v<Test, SizeTest>) {
-        if (n == kSideBlock) {
-            const __m256 half = _mm256_set1_ps(0.5f);
-            const float* base = &r[0].lo.x + side.axis;
-            uint64_t mask = 0;
-            for (uint32_t j = 0; j < kSideBlock / 8; ++j) {
-                const float* q = base + 64 * j;
-                const __m256 lo = _mm256_setr_ps(q[0], q[8], q[16], q[24], q[32], q[40], q[48], q[56]);
-                const __m256 hi = _mm256_setr_ps(q[4], q[12], q[20], q[28], q[36], q[44], q[52], q[60]);
-                const __m256 c = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(lo, half), _mm256_mul_ps(hi, half)),
-                                               _mm256_setzero_ps());
-                mask |= uint64_t(side.left8(c)) << (8 * j);
+        if constexpr (!std::is_same_v<Test, SizeTest>) {
+            if (n == kSideBlock) {
+                const __m256 half = _mm256_set1_ps(0.5f);
+                const float* base = &r[0].lo.x + side.axis;
+                uint64_t mask = 0;
+                for (uint32_t j = 0; j < kSideBlock / 8; ++j) {
+                    const float* q = base + 64 * j;
+                    const __m256 lo = _mm256_setr_ps(q[0], q[8], q[16], q[24], q[32], q[40], q[48], q[56]);
+                    const __m256 hi = _mm256_setr_ps(q[4], q[12], q[20], q[28], q[36], q[44], q[52], q[60]);
+                    const __m256 c = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(lo, half), _mm256_mul_ps(hi, half)),
+                                                   _mm256_setzero_ps());
+                    mask |= uint64_t(side.left8(c)) << (8 * j);
+                }
+                return mask;
             }
-            return mask;
         }
-    }
 #endif
-    uint64_t mask = 0;
-    for (uint32_t k = 0; k < n; ++k)
-        mask |= uint64_t(side.left(simd::centroid(simd::lo(r[k]), simd::hi(r[k])), simd::hi_area(r[k]))) << k;
-    return mask;
+        uint64_t mask = 0;
+        for (uint32_t k = 0; k < n; ++k)
+            mask |= uint64_t(side.left(simd::centroid(simd::lo(r[k]), simd::hi(r[k])), simd::hi_area(r[k]))) << k;
+        return mask;
     }
 }
 inline uint64_t block_bits(uint32_t n) { return n >= 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1; }
