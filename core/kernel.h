@@ -1525,9 +1525,10 @@ inline PartitionResult partition_by_keys(PrimRef* refs, uint32_t begin, uint32_t
 inline PartitionResult partition_binned(PrimRef* refs, uint32_t begin, uint32_t end, const Split& s,
                                         const BinSet& bins) {
     static_assert(kBinBlock <= kSideBlock);
+    assert(end - begin <= kBinBlock);
+    const uint32_t n = std::min(end - begin, kBinBlock);  // for the compiler's bounds analysis
     uint64_t left = 0;
-    for (uint32_t i = 0; i < end - begin; ++i)
-        left |= uint64_t(uint32_t(bins.index[i][s.axis]) < s.index) << i;
+    for (uint32_t i = 0; i < n; ++i) left |= uint64_t(uint32_t(bins.index[i][s.axis]) < s.index) << i;
     return partition_block(refs, begin, begin + s.left_count, end, left);
 }
 
