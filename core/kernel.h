@@ -1265,6 +1265,8 @@ decltype(auto) with_side_test(const BinMapper& m, const Split& s, const uint32_t
     if (keys) return f(KeyTest(keys, refs, s));
     return f(SideTest(m, s));
 }
+// Without keys. (Not a call of the one above with null keys: that would
+// instantiate f for KeyTest too, which callers like goes_left() cannot take.)
 template <class F>
 decltype(auto) with_side_test(const BinMapper& m, const Split& s, F&& f) {
     if (s.by_size()) return f(SizeTest(s));

@@ -512,6 +512,23 @@ canopy::Node tagged(uint32_t i) {
     return n;
 }
 bool has_tag(const canopy::Node& n, uint32_t i) { return n.min[0] == float(i) && n.index == i && n.count == i + 1; }
+// Tags every slot of v's capacity with its index.
+void tag_all(canopy::NodeArray& v) {
+    for (size_t i = 0; i < v.capacity(); ++i) v.data()[i] = tagged(uint32_t(i));
+}
+// 1 MiB of tagged slots, mapped or on the heap.
+canopy::NodeArray tagged_mib(bool map) {
+    canopy::NodeArray v = map ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
+    v.reserve(size_t(1) << 15);
+    tag_all(v);
+    return v;
+}
+// The bytes of the whole 4 KiB pages inside [begin, end).
+size_t whole_page_bytes(const void* begin, const void* end) {
+    const size_t first = (reinterpret_cast<std::uintptr_t>(begin) + 4095) / 4096,
+                 last = reinterpret_cast<std::uintptr_t>(end) / 4096;
+    return last > first ? (last - first) * 4096 : 0;
+}
 
 // Mapped bytes as the observer of core/memory.h sees them.
 std::atomic<long long> g_mapped{0}, g_mapped_peak{0};
@@ -586,7 +603,7 @@ TEST(BuildMemory, MappedNodeArrayGrowsWithoutASecondCopy) {
         EXPECT_GE(small, (1ll << 16) * 32);
         g_mapped_peak = small;
         // Every page written, so that a copy would have something to copy.
-        for (size_t i = 0; i < v.capacity(); ++i) v.data()[i] = tagged(uint32_t(i));
+        tag_all(v);
         const canopy::Node* before = v.data();
         v.expand(size_t(3) << 15);  // 3 MiB: within the reservation, in place
         EXPECT_EQ(v.data(), before);
@@ -1247,9 +1264,7 @@ TEST(BuildMemory, OverflowAreaGivesTheStorageFrontBackOnceTheTreeCannotFit) {
     if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
     canopy::set_mapped_bytes_observer(observe_mapped);
     for (const bool map : {false, true}) {
-        canopy::NodeArray storage = map ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
-        storage.reserve(size_t(1) << 15);  // 1 MiB
-        for (size_t i = 0; i < storage.capacity(); ++i) storage.data()[i] = tagged(uint32_t(i));
+        canopy::NodeArray storage = tagged_mib(map);
         const canopy::Node* records = storage.data() + 4000;  // a front of 125 KiB
         canopy::OverflowArea area;
         area.reset(1000);
@@ -1261,11 +1276,10 @@ TEST(BuildMemory, OverflowAreaGivesTheStorageFrontBackOnceTheTreeCannotFit) {
         EXPECT_EQ(g_mapped.load(), start) << map;
         area.count_block(1);
         EXPECT_TRUE(area.front_given()) << map;
-        const size_t first = (reinterpret_cast<std::uintptr_t>(storage.data()) + 4095) / 4096,
-                     last = reinterpret_cast<std::uintptr_t>(records) / 4096;
-        EXPECT_EQ(g_mapped.load(), start - (long long)((last - first) * 4096)) << map;
+        const long long front = (long long)whole_page_bytes(storage.data(), records);
+        EXPECT_EQ(g_mapped.load(), start - front) << map;
         area.count_block(5000);  // once only
-        EXPECT_EQ(g_mapped.load(), start - (long long)((last - first) * 4096)) << map;
+        EXPECT_EQ(g_mapped.load(), start - front) << map;
         // The records and what follows them are kept.
         for (size_t i = 4000; i < storage.capacity(); ++i) ASSERT_TRUE(has_tag(storage.data()[i], uint32_t(i))) << i;
         // A new build's area watches nothing until told.
@@ -1321,15 +1335,11 @@ TEST(BuildMemory, DiscardedPagesAreCountedOnce) {
     canopy::set_mapped_bytes_observer(observe_mapped);
     for (const bool map : {false, true}) {
         {
-            canopy::NodeArray v = map ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
-            v.reserve(size_t(1) << 15);  // 1 MiB
-            for (size_t i = 0; i < v.capacity(); ++i) v.data()[i] = tagged(uint32_t(i));
+            canopy::NodeArray v = tagged_mib(map);
             const long long start = g_mapped.load();
             // Whole pages inside the range only.
             const size_t given = v.discard(v.data() + 100, v.data() + 20000);
-            const size_t first = (reinterpret_cast<std::uintptr_t>(v.data() + 100) + 4095) / 4096,
-                         last = reinterpret_cast<std::uintptr_t>(v.data() + 20000) / 4096;
-            EXPECT_EQ(given, (last - first) * 4096) << map;
+            EXPECT_EQ(given, whole_page_bytes(v.data() + 100, v.data() + 20000)) << map;
             EXPECT_EQ(g_mapped.load(), start - (long long)given) << map;
             // The rest is kept.
             for (size_t i = 0; i < 100; ++i) ASSERT_TRUE(has_tag(v.data()[i], uint32_t(i))) << i;
@@ -1423,7 +1433,7 @@ TEST(BuildMemory, HeapNodeArrayExpandsIntoAMappingPieceByPiece) {
             canopy::NodeArray v;  // heap below kMapMin
             v.reserve(old_nodes);
             ASSERT_FALSE(v.mapped());
-            for (size_t i = 0; i < v.capacity(); ++i) v.data()[i] = tagged(uint32_t(i));
+            tag_all(v);
             const size_t old_cap = v.capacity();
             v.expand(2 * old_cap);
             EXPECT_TRUE(v.mapped());
