@@ -23,6 +23,8 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <memory>
+#include <new>
 #include <type_traits>
 #include <vector>
 
@@ -551,22 +553,29 @@ inline constexpr uint32_t kBinBlock = 64;
 // scratch for large ranges (see there); only the first set is the result.
 // `index` holds the bin indices (one lane per axis) of the last block of
 // records that bin() went over: for a node of at most kBinBlock records,
-// those of all its records, which partition_binned() reuses. The bins of
-// both sets live in `storage`, the first set's from its start and the
-// second's right after them (second()). Not copyable: the sets point into
-// the object.
+// those of all its records, which partition_binned() reuses. Room for up to
+// `max_bins` bins per axis (clear() no more) in each set; the first set's
+// bins lie after `index`, the second's right after them (second()), all in
+// one block the set owns. Not copyable: the sets point into the block.
+// A build makes its sets for the most bins its root uses (bins_for(n,
+// bins); 32 by default below kWideBinsMin primitives: 6 KiB of boxes, not
+// the 48 KiB of kMaxBins, which with a set per worker were 2 to 3 bytes per
+// triangle of the peak memory of 2-thread builds of 33,000 to 50,000
+// triangles). With the bins in an allocation of their own, apart from
+// `index` (until then both were arrays of the object), 2-thread builds of
+// 1M random triangles took 1.02x as long (alternated, 2026-12-05).
 struct BinSet : BinArrays {
     BinArrays odd;
-    alignas(32) int32_t index[kBinBlock][4];
-    alignas(32) simd::MinBox storage[6 * kMaxBins];
+    int32_t (*index)[4] = nullptr;  // kBinBlock rows
+
+    explicit BinSet(uint32_t max_bins = kMaxBins)  // clear() before use
+        : capacity((std::min(max_bins, kMaxBins) + 3) & ~3u), block(allocate(capacity)) {
+        index = reinterpret_cast<int32_t(*)[4]>(block.get());
+        base = reinterpret_cast<simd::MinBox*>(block.get() + kIndexBytes);
+        std::uninitialized_default_construct_n(base, 6 * size_t(capacity));
+        stride = capacity;
 #if !CANOPY_PACKED_COUNTS
-    uint32_t count_storage[6 * kMaxBins];
-#endif
-    BinSet() {  // clear() before use
-        base = storage;
-        stride = kMaxBins;
-#if !CANOPY_PACKED_COUNTS
-        counts = count_storage;
+        counts = reinterpret_cast<uint32_t*>(base + 6 * size_t(capacity));
 #endif
     }
     BinSet(const BinSet&) = delete;
@@ -574,15 +583,33 @@ struct BinSet : BinArrays {
     // The second set, cleared, right after the first set's bins and with
     // their stride (the first set cleared for at least `bins` bins).
     BinArrays& second(uint32_t bins) {
-        assert(bins <= stride);
+        assert(bins <= stride && stride <= capacity);
         (void)bins;
-        odd.base = storage + 3 * size_t(stride);
+        odd.base = base + 3 * size_t(stride);
 #if !CANOPY_PACKED_COUNTS
-        odd.counts = count_storage + 3 * size_t(stride);
+        odd.counts = counts + 3 * size_t(stride);
 #endif
         odd.clear(stride);
         return odd;
     }
+    // Bins per axis it has room for (a multiple of 4).
+    uint32_t max_bins() const { return capacity; }
+
+private:
+    static constexpr size_t kIndexBytes = sizeof(int32_t[kBinBlock][4]);
+    static constexpr std::align_val_t kAlign{64};
+    struct Free {
+        void operator()(std::byte* p) const { ::operator delete(p, kAlign); }
+    };
+    static std::byte* allocate(uint32_t capacity) {
+        size_t bytes = kIndexBytes + 6 * size_t(capacity) * sizeof(simd::MinBox);
+#if !CANOPY_PACKED_COUNTS
+        bytes += 6 * size_t(capacity) * sizeof(uint32_t);
+#endif
+        return static_cast<std::byte*>(::operator new(bytes, kAlign));
+    }
+    uint32_t capacity;
+    std::unique_ptr<std::byte, Free> block;
 };
 
 // Step 1: bin the centroids of refs[begin, end) on every valid axis, in one
@@ -2071,6 +2098,7 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
         return split(middle_split(ctx.refs, t.begin, t.end));
     }
     skip.axes_not_binned += 3 - m.valid_count();
+    assert(m.bins <= bins.max_bins());
     bins.clear(m.bins);
     // Nodes partitioned by their keys (larger than kBinBlock) get them in
     // the permutation's slots of their range, which only their leaves

@@ -119,10 +119,9 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
 //    node array's storage): block nodes 1 to `over_records` written over the
 //    records [root.begin, root.begin + over_records), which the subtree no
 //    longer needs once it is built, and the nodes after them, when the block
-//    has more nodes than records, in the overflow area from
-//    (*overflow)[root.begin] on, or, when they are few
-//    (PlacementArena::kSpillMax), in the chunks from (chunk, first) as
-//    above (`spilled`).
+//    has more nodes than records, in the overflow area within the block's
+//    range (area_at()), or, when they are few (PlacementArena::kSpillMax),
+//    in the chunks from (chunk, first) as above (`spilled`).
 //    Block node 0, the subtree's root, is not stored: `root` describes it
 //    (an inner root's first child is block node 1).
 struct SubtreeBlock {
@@ -133,6 +132,28 @@ struct SubtreeBlock {
     uint32_t leaves = 0;
     uint32_t over_records = 0;
     bool spilled = false;  // over_records: the nodes past them in the chunks, from (chunk, first)
+
+    // Where in the overflow area (page-aligned, 128 nodes a page) the nodes
+    // past the records lie, within the block's range: from the first page
+    // boundary in it for a left child, up to the last one for a right child
+    // (from its start, up to its end, where they do not fit so), so that
+    // the unused ends of two sibling blocks' ranges meet and no page holds
+    // the nodes of two blocks. The area brings in whole pages: with each
+    // block's nodes from its range's start, the 47 blocks of 33,000 random
+    // triangles (0.86 nodes past the records per record) left almost no
+    // page of the area untouched, 3.4 bytes per triangle of the peak. There
+    // are nodes past the records only when the records are all covered
+    // (over_records is the block's record count).
+    uint32_t area_at() const {
+        constexpr uint64_t kPageNodes = 4096 / sizeof(Node);
+        const uint64_t past = size - 1 - over_records, begin = root.begin, end = begin + over_records;
+        if (!root.is_right) {
+            const uint64_t at = (begin + kPageNodes - 1) / kPageNodes * kPageNodes;
+            return static_cast<uint32_t>(at + past <= end ? at : begin);
+        }
+        const uint64_t last = end / kPageNodes * kPageNodes;
+        return static_cast<uint32_t>(last >= begin + past ? last - past : end - past);
+    }
 };
 
 // A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
@@ -392,7 +413,7 @@ inline void place_block_body(const PlacementArena& a, const SubtreeBlock& b, con
         if (b.spilled)
             copy_from_chunks(a, b.chunk, b.first, body, c - 1, dst);
         else
-            copy_shifted(a.overflow->data() + b.root.begin, body, c - 1, dst);
+            copy_shifted(a.overflow->data() + b.area_at(), body, c - 1, dst);
     } else {
         // The root is the chunks' node (b.chunk, b.first); the body follows.
         copy_from_chunks(a, b.chunk, b.first + 1, body, c - 1, dst);

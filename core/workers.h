@@ -18,7 +18,7 @@ namespace canopy {
 // skip counters change at every node, and two workers sharing a line made
 // the threads invalidate each other's copy at every node (false sharing).
 struct alignas(64) Worker {
-    std::unique_ptr<BinSet> bins = std::make_unique<BinSet>();
+    std::unique_ptr<BinSet> bins;  // made by Workers::reset()
     PlacementArena out;
     SkipCounts skip;
     uint32_t id = 0;  // the trace's track
@@ -29,7 +29,7 @@ struct Workers {
     OverflowArea overflow;  // one-off builds' (reset(..., over_records))
 
     Workers() = default;
-    Workers(uint32_t count, uint32_t primitives) { reset(count, primitives); }
+    Workers(uint32_t count, uint32_t primitives, uint32_t bins = kMaxBins) { reset(count, primitives, bins); }
 
     // `count` workers with empty arenas and counters, keeping the memory of
     // earlier builds (bins, record vectors, node chunks). `primitives`: the
@@ -43,8 +43,12 @@ struct Workers {
     // `over_records`: the blocks are kept over their records (SubtreeBlock),
     // the nodes that do not fit over them in the overflow area or, a few,
     // in the chunks.
-    void reset(uint32_t count, uint32_t primitives, uint32_t chunk_nodes = 0, bool over_records = false) {
+    // `bins`: the build's bins option; each worker's bin set has room for
+    // the most its nodes use (bins_for() of the whole scene), no more.
+    void reset(uint32_t count, uint32_t primitives, uint32_t bins, uint32_t chunk_nodes = 0,
+               bool over_records = false) {
         w.resize(count);
+        const uint32_t max_bins = bins_for(std::max(primitives, 1u), bins);
         overflow.reset(over_records ? primitives : 0);
         // Over their records (a one-off build), the chunks take only the
         // nodes past the records of subtrees with a few more nodes than
@@ -63,6 +67,8 @@ struct Workers {
         // pairs of --repeat 5 medians, 695-702 ms against 791-890).
         if (!chunk_nodes && chunk >= (size_t(1) << 15)) chunk = (chunk + 0xFFFF) & ~size_t(0xFFFF);
         for (uint32_t i = 0; i < count; ++i) {
+            if (!w[i].bins || w[i].bins->max_bins() != ((max_bins + 3) & ~3u))
+                w[i].bins = std::make_unique<BinSet>(max_bins);
             w[i].id = i;
             w[i].skip = SkipCounts{};
             w[i].out.reset();

@@ -65,13 +65,13 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 }
 
 // run_subtree() of a one-off build (PlacementArena::over_records): the
-// subtree is built into the worker's scratch array (a few hundred KiB at
-// most under the default task cutoff), and then, its records being no
-// longer needed (its leaves wrote their ids to the permutation), its nodes
-// after the root are copied over them, as many as there are records; the
-// rest (a tree of more nodes than primitives) go to the overflow area at
-// the subtree's range (core/overflow_area.h), or, if they are fewer than
-// PlacementArena::kSpillMax, to the worker's chunks.
+// subtree is built into the worker's scratch array (up to 256 KiB under the
+// default task cutoff, less on small scenes: scratch_cutoff()), and then,
+// its records being no longer needed (its leaves wrote their ids to the
+// permutation), its nodes after the root are copied over them, as many as
+// there are records; the rest (a tree of more nodes than primitives) go to
+// the overflow area within the subtree's range (SubtreeBlock::area_at(),
+// core/overflow_area.h), or, if they are few, to the worker's chunks.
 // Those records lie in the final node array's storage, in memory the build
 // has already brought in, and the placement then moves the nodes towards
 // the front of that storage (place_over_records() in core/layout.h): a
@@ -80,7 +80,9 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& root, Worker& wk) {
     NodeArray& nodes = wk.out.scratch;
     nodes.clear();
-    if (nodes.capacity() < size_t(root.size()) + 1) nodes.reserve(size_t(root.size()) + root.size() / 8 + 64);
+    // At most 2 * size - 1 nodes: reserved whole, so the array never grows
+    // by doubling (which held 1.7 times a random subtree's nodes).
+    if (nodes.capacity() < 2 * size_t(root.size())) nodes.reserve(2 * size_t(root.size()));
     GrowingNodes out(nodes);
     SubtreeBlock b;
     b.leaves = build_depth_first(ctx, root, out, *wk.bins, wk.skip, wk.id);
@@ -90,8 +92,14 @@ inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& r
     b.over_records = std::min(body, root.size());
     std::memcpy(static_cast<void*>(ctx.refs + root.begin), nodes.data() + 1, size_t(b.over_records) * sizeof(Node));
     const Node* rest = nodes.data() + 1 + b.over_records;
-    if (body - b.over_records >= PlacementArena::kSpillMax) {
-        wk.out.overflow->write(root.begin, rest, body - b.over_records);
+    // Few nodes past the records go to the chunks, fewer still from small
+    // subtrees (scratch_cutoff()): the chunks are held whole until the
+    // placement ends, while it gives back the area's pages as it goes, and
+    // with the threshold at 512 the 2-thread builds of 33,000 random
+    // triangles peaked at 77 to 79 bytes per triangle.
+    const uint32_t spill_max = std::min<uint32_t>(PlacementArena::kSpillMax, ctx.options->tuning.task_cutoff / 8);
+    if (body - b.over_records >= spill_max) {
+        wk.out.overflow->write(b.area_at(), rest, body - b.over_records);
     } else if (body > b.over_records) {
         b.spilled = true;
         const auto [chunk, first] = wk.out.append(rest, body - b.over_records);
@@ -142,11 +150,31 @@ void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each) {
     st.finish_prepare(all);
 }
 
+// The task cutoff of a one-off build of n primitives: `cutoff`, or n / 32
+// if less (from kScratchCutoffMin), which lowers it below 131,072
+// primitives. Each worker builds its inline subtrees in a scratch array of
+// up to two nodes per record of the subtree (run_subtree_over_records()),
+// held until the end of the build, which is when a one-off build holds the
+// most: at most 2 bytes per triangle a worker this way. At 4,096 the two
+// workers' scratch arrays were 9.7 bytes per triangle of the peak of a
+// 2-thread build of 50,000 random triangles (76.5 against 68.4 by
+// `sequential`). Smaller tasks cost time on such scenes: 2-thread builds of
+// 50,000 random triangles took 1.04x as long (tbb and omp_tasks, 15
+// alternated rounds of --repeat 51, 2026-12-05; the 69,451-triangle bunny
+// 0.99x). Only which nodes run as tasks depends on it, never the tree.
+inline constexpr uint32_t kScratchCutoffMin = 512;
+inline uint32_t scratch_cutoff(uint32_t n, uint32_t cutoff) {
+    return std::min(cutoff, std::max(kScratchCutoffMin, n / 32));
+}
+
 // Readies `count` workers for a parallel build of st (after
 // allocate_records_in_tree()): over the records in a one-off build, whose
-// storage's front the overflow area watches (OverflowArea::watch_front()).
+// storage's front the overflow area watches (OverflowArea::watch_front()),
+// with the task cutoff scratch_cutoff() makes.
 inline void start_workers(BuildState& st, Workers& workers, uint32_t count) {
-    workers.reset(count, st.n, st.options.tuning.chunk_nodes, st.records_in_tree());
+    if (st.records_in_tree())
+        st.options.tuning.task_cutoff = scratch_cutoff(st.n, st.options.tuning.task_cutoff);
+    workers.reset(count, st.n, st.options.bins, st.options.tuning.chunk_nodes, st.records_in_tree());
     if (st.records_in_tree()) workers.overflow.watch_front(st.bvh.nodes, st.records);
 }
 
@@ -166,7 +194,7 @@ void finish_parallel(BuildState& st, Workers& workers, ForEach&& for_each) {
     if (st.records_in_tree()) {
         // The blocks' nodes lie over the records, in bvh.nodes' storage
         // (run_subtree_over_records()). The workers' scratch arrays (a
-        // subtree each, up to a few hundred KiB) go before the placement.
+        // subtree each, up to 256 KiB) go before the placement.
         for (auto& wk : workers.w) wk.out.scratch = NodeArray();
         place_over_records(all, st.records, st.bvh.nodes, each, st.options.tuning.place_parallel_min);
         st.records = nullptr;

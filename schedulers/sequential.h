@@ -30,7 +30,7 @@ struct Sequential {
             const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);
             st.finish_prepare(st.prepare_range(0, st.n));
         }
-        auto bins = std::make_unique<BinSet>();
+        auto bins = std::make_unique<BinSet>(bins_for(st.n, st.options.bins));  // as many as its root uses
         KernelContext ctx = st.context();
         if (own_records) {
             NodeArray& nodes = st.bvh.nodes;

@@ -1136,8 +1136,8 @@ size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, std::vecto
     root.max_area = s.max_area;
     perm.assign(n, ~0u);
     const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
-    canopy::Workers workers(3, n);
-    workers.reset(3, n, 24, true);
+    canopy::Workers workers(3, n, opt.bins);
+    workers.reset(3, n, opt.bins, 24, true);
     std::vector<canopy::NodeTask> pending{root};
     uint32_t turn = 0, subtrees = 0;
     while (!pending.empty()) {
@@ -1477,4 +1477,63 @@ TEST(BuildLayout, FirstChildSlotFormula) {
     EXPECT_EQ(rank.rank(128), 6u);
     EXPECT_EQ(rank.rank(199), 7u);
     EXPECT_EQ(rank.rank(200), 8u);
+}
+
+TEST(BuildLayout, OverflowNodesSitOnWholePagesWithinTheirRange) {
+    // A block's nodes past its records lie within its range, from its first
+    // page boundary (a left child) or up to its last one (a right child),
+    // and where they do not fit so, from its start or up to its end.
+    constexpr uint32_t kPage = 4096 / sizeof(canopy::Node);  // 128 nodes
+    const auto block = [](uint32_t begin, uint32_t records, uint32_t past, bool right) {
+        canopy::SubtreeBlock b;
+        b.root.begin = begin;
+        b.root.is_right = right;
+        b.over_records = records;
+        b.size = 1 + records + past;
+        return b;
+    };
+    for (const bool right : {false, true})
+        for (uint32_t begin : {0u, 1u, 127u, 128u, 1000u, 0xFFFFFF00u - 4096u})
+            for (uint32_t records : {1u, 100u, 200u, 300u, 1031u, 4095u})
+                for (uint32_t past : {0u, 1u, 50u, 99u, 150u, 600u, 4000u}) {
+                    if (past >= records) continue;  // at most 2 * records - 1 nodes in all
+                    const canopy::SubtreeBlock b = block(begin, records, past, right);
+                    const uint64_t at = b.area_at(), end = uint64_t(begin) + records;
+                    ASSERT_GE(at, begin) << begin << " " << records << " " << past << " " << right;
+                    ASSERT_LE(at + past, end) << begin << " " << records << " " << past << " " << right;
+                    const uint64_t first_page = (uint64_t(begin) + kPage - 1) / kPage * kPage, last_page = end / kPage * kPage;
+                    if (!right)
+                        EXPECT_EQ(at, first_page + past <= end ? first_page : begin) << begin << " " << records;
+                    else
+                        EXPECT_EQ(at + past, last_page >= begin + past ? last_page : end) << begin << " " << records;
+                }
+    // Siblings: the left one's unused end and the right one's unused start meet.
+    const canopy::SubtreeBlock left = block(1000, 1000, 700, false), right = block(2000, 1000, 700, true);
+    EXPECT_EQ(left.area_at(), 1024u);
+    EXPECT_EQ(right.area_at() + 700, 2944u);
+    EXPECT_GE(right.area_at(), left.area_at() + 700 + 2 * kPage);  // two whole pages between them untouched
+}
+
+TEST(BuildMemory, SmallScenesGetSmallTasksAndBinSets) {
+    // A one-off build's task cutoff: the option's, or n / 32 when less
+    // (from 512), so that the workers' scratch arrays stay small beside a
+    // small scene; a bin set sized for the bins its root uses.
+    EXPECT_EQ(canopy::sched::scratch_cutoff(1000000, 4096), 4096u);
+    EXPECT_EQ(canopy::sched::scratch_cutoff(131072, 4096), 4096u);
+    EXPECT_EQ(canopy::sched::scratch_cutoff(50000, 4096), 1562u);
+    EXPECT_EQ(canopy::sched::scratch_cutoff(1000, 4096), 512u);
+    EXPECT_EQ(canopy::sched::scratch_cutoff(50000, 64), 64u);  // the tests' low cutoffs stay
+    canopy::Workers workers(2, 50000, 32);
+    EXPECT_EQ(workers[0].bins->max_bins(), 32u);
+    workers.reset(2, 1u << 19, 32);  // 4 * 32 from kWidestBinsMin primitives on
+    EXPECT_EQ(workers[1].bins->max_bins(), 128u);
+    workers.reset(2, 100, 2);
+    EXPECT_EQ(workers[1].bins->max_bins(), 4u);  // a multiple of 4
+    // The second set follows the first within the block, for the most bins.
+    canopy::BinSet set(32);
+    set.clear(32);
+    canopy::BinArrays& odd = set.second(32);
+    EXPECT_EQ(odd.base, set.base + 3 * 32);
+    for (int a = 0; a < 3; ++a)
+        for (uint32_t k = 0; k < 32; ++k) EXPECT_EQ(odd.count(a, k) + set.count(a, k), 0u);
 }
