@@ -61,7 +61,10 @@ struct BuildState {
     BuildStats stats;
     TraceLog* trace = nullptr;  // optional
 
-    KernelContext context() { return {records, bvh.permutation.data(), &options, trace}; }
+    // `threads`: how many work on the records (KernelContext::shared).
+    KernelContext context(uint32_t threads = 1) {
+        return {records, bvh.permutation.data(), &options, trace, threads > 1};
+    }
 
     // The records in an array of their own: the sequential layout, whose
     // nodes are written while the records are in use.

@@ -24,7 +24,7 @@ struct OmpLevels {
         const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
         st.allocate_records_in_tree();  // before any context() is taken
-        const KernelContext ctx = st.context();
+        const KernelContext ctx = st.context(threads);
         struct Level {
             std::vector<NodeTask> frontier, big, small, next, kids;
             std::vector<uint8_t> split;

@@ -28,7 +28,7 @@ struct OmpQueues {
         const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
         st.allocate_records_in_tree();  // before any context() is taken
-        const KernelContext ctx = st.context();
+        const KernelContext ctx = st.context(threads);
         sched::TopPhase top;
         std::vector<Queue> queues;
         std::atomic<int64_t> outstanding{0};

@@ -17,7 +17,7 @@ struct OmpTasks {
         const uint32_t threads = sched::useful_threads(st);
         if (threads == 1) return Sequential::run(st);
         st.allocate_records_in_tree();  // before any context() is taken
-        const KernelContext ctx = st.context();
+        const KernelContext ctx = st.context(threads);
         sched::TopPhase top;
         sched::omp_build(st, threads, [&](sched::Workers& workers, uint32_t team) {
             sched::omp_top_phase(ctx, st.n, team, top, workers, st.root);

@@ -38,7 +38,7 @@ struct Tbb {
             // Slots are indexed by the arena's thread index, unique per thread.
             sched::Workers& workers = st.workers;
             sched::start_workers(st, workers, static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
-            Builder b{st.context(), st.n, threads, workers};
+            Builder b{st.context(threads), st.n, threads, workers};
             b.task(st.root);
             sched::finish_parallel(st, workers, for_each);
         });
