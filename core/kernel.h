@@ -1507,6 +1507,18 @@ inline constexpr uint32_t kPrefetchMin = 1u << 16;
 inline void prefetch_for_write(const PrimRef* refs, uint32_t n) {
     for (uint32_t k = 0; k < n; k += 2) __builtin_prefetch(refs + k, 1, 3);  // two records a line
 }
+// The block kPrefetchBlocks ahead of a walk over blocks of kSideBlock
+// records, when whole inside it: going up, the next block starting at
+// `next` and the walk ending at `end`; going down, the next block ending at
+// `next_end` and the walk starting at `begin`.
+inline constexpr uint32_t kPrefetchAhead = (kPrefetchBlocks - 1) * kSideBlock;
+inline void prefetch_up(const PrimRef* refs, uint32_t next, uint32_t end) {
+    if (next + kPrefetchAhead + kSideBlock <= end) prefetch_for_write(refs + next + kPrefetchAhead, kSideBlock);
+}
+inline void prefetch_down(const PrimRef* refs, uint32_t next_end, uint32_t begin) {
+    if (next_end >= begin + kPrefetchAhead + kSideBlock)
+        prefetch_for_write(refs + next_end - kPrefetchAhead - kSideBlock, kSideBlock);
+}
 
 // The partition loop over refs[b, e) with left part [b, mid).
 template <class Test>
@@ -1520,8 +1532,6 @@ PartitionResult partition_with(PrimRef* refs, uint32_t b, uint32_t mid, uint32_t
     // going left); pairs are swapped in order while both have some.
     uint32_t i = b, j = mid;
     uint64_t mi = 0, mj = 0;
-    // (see prefetch_for_write(): the next block is right after the one read)
-    constexpr uint32_t kAhead = (kPrefetchBlocks - 1) * kSideBlock;
     const bool prefetch = std::is_same_v<Test, KeyTest> && shared && e - b >= kPrefetchMin;
     PrimRef* ri = refs + b;
     PrimRef* rj = refs + mid;
@@ -1532,7 +1542,7 @@ PartitionResult partition_with(PrimRef* refs, uint32_t b, uint32_t mid, uint32_t
             ri = refs + i;
             mi = ~mark_block(ri, n, side, acc) & block_bits(n);
             i += n;
-            if (prefetch && i + kAhead + kSideBlock <= mid) prefetch_for_write(refs + i + kAhead, kSideBlock);
+            if (prefetch) prefetch_up(refs, i, mid);
         }
         if (!mj) {
             if (j >= e) break;
@@ -1540,7 +1550,7 @@ PartitionResult partition_with(PrimRef* refs, uint32_t b, uint32_t mid, uint32_t
             rj = refs + j;
             mj = mark_block(rj, n, side, acc);
             j += n;
-            if (prefetch && j + kAhead + kSideBlock <= e) prefetch_for_write(refs + j + kAhead, kSideBlock);
+            if (prefetch) prefetch_up(refs, j, e);
         }
         for (; mi && mj; mi &= mi - 1, mj &= mj - 1) swap_refs(ri[std::countr_zero(mi)], rj[std::countr_zero(mj)]);
     }
@@ -1659,11 +1669,12 @@ struct HalfCursor {
         bits = right_part ? left : ~left & block_bits(n);
         at = Side == 0 ? at + n : at - n;
         if constexpr (std::is_same_v<Test, KeyTest>) {
-            // The block kPrefetchBlocks ahead (see prefetch_for_write()):
-            // a team's node is one whose lines the other cores read last.
-            constexpr uint32_t kAhead = (kPrefetchBlocks - 1) * kSideBlock;
-            if (Side == 0 ? at + kAhead + kSideBlock <= hi : at >= lo + kAhead + kSideBlock)
-                prefetch_for_write(refs + (Side == 0 ? at + kAhead : at - kAhead - kSideBlock), kSideBlock);
+            // (see prefetch_for_write(): a team's node is one whose lines
+            // the other cores read last)
+            if constexpr (Side == 0)
+                prefetch_up(refs, at, hi);
+            else
+                prefetch_down(refs, at, lo);
         }
         return true;
     }

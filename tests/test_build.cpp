@@ -1136,7 +1136,7 @@ size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, std::vecto
     root.max_area = s.max_area;
     perm.assign(n, ~0u);
     const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
-    canopy::Workers workers(3, n, opt.bins);
+    canopy::Workers workers;
     workers.reset(3, n, opt.bins, 24, true);
     std::vector<canopy::NodeTask> pending{root};
     uint32_t turn = 0, subtrees = 0;
