@@ -750,6 +750,37 @@ inline void store_keys(const int32_t (*k)[4], uint32_t n, uint32_t* out) {
     for (; i < n; ++i) out[i] = uint32_t(k[i][0]) | uint32_t(k[i][1]) << 8 | uint32_t(k[i][2]) << 16;
 }
 
+// The bin indices of records r[0, n) (n <= kBinBlock) on the three axes,
+// one row each in k. Pre: see BinMapper::indices4.
+template <bool Pre>
+inline void block_indices(const PrimRef* r, uint32_t n, const BinMapper& m, int32_t (*k)[4]) {
+    uint32_t i0 = 0;
+#if defined(__AVX__)
+    // Two records at a time in 256-bit vectors, lane for lane the same
+    // operations as indices4(centroid()), so the same indices. Against
+    // one record per 128-bit step (warm sequential builds, alternated
+    // pairs, medians of 7 to 11 pairs): 1M sphere 0.945x as long,
+    // dragon_vrip_res2 0.994x, the cow 0.98x.
+    {
+        const __m256 keep = simd::xyz_mask2();
+        const __m256 o = _mm256_set_m128(m.origin4, m.origin4), p = _mm256_set_m128(m.prescale4, m.prescale4);
+        const __m256 sc = _mm256_set_m128(m.scale4, m.scale4), last = _mm256_set_m128(m.last4, m.last4);
+        for (; i0 + 1 < n; i0 += 2) {
+            const __m256 lo = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].lo.x, &r[i0].lo.x), keep);
+            const __m256 hi = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].hi.x, &r[i0].hi.x), keep);
+            __m256 f = _mm256_sub_ps(simd::centroid2(lo, hi), o);
+            if constexpr (Pre) f = _mm256_mul_ps(f, p);
+            f = _mm256_mul_ps(f, sc);
+            f = _mm256_min_ps(_mm256_max_ps(f, _mm256_setzero_ps()), last);
+            _mm256_store_si256(reinterpret_cast<__m256i*>(k[i0]), _mm256_cvttps_epi32(f));
+        }
+    }
+#endif
+    for (uint32_t i = i0; i < n; ++i)
+        _mm_store_si128(reinterpret_cast<__m128i*>(k[i]),
+                        m.template indices4<Pre>(simd::centroid(simd::lo(r[i]), simd::hi(r[i]))));
+}
+
 // bin() over blocks of records; Two: every other record into out.odd;
 // Pre: the mapping's prescale is applied (see BinMapper::indices4); keys:
 // see bin().
@@ -763,7 +794,6 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
     for (uint32_t b0 = begin; b0 < end; b0 += kBinBlock) {
         const uint32_t n = std::min(kBinBlock, end - b0);
         const PrimRef* r = refs + b0;
-        uint32_t i0 = 0;
         // Large ranges ask for the block two blocks ahead (4 KiB) to be
         // cached. On this session's Intel Xeon host (bench/ab/run.sh, 9
         // rounds of 5 warm sequential builds): 1M sphere 0.97x as long, 1M
@@ -778,30 +808,7 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
                 for (uint32_t q = 0; q < kBinBlock * sizeof(PrimRef); q += 64) _mm_prefetch(p + q, _MM_HINT_T0);
             }
         }
-#if defined(__AVX__)
-        // Two records at a time in 256-bit vectors, lane for lane the same
-        // operations as indices4(centroid()), so the same indices. Against
-        // one record per 128-bit step (warm sequential builds, alternated
-        // pairs, medians of 7 to 11 pairs): 1M sphere 0.945x as long,
-        // dragon_vrip_res2 0.994x, the cow 0.98x.
-        {
-            const __m256 keep = simd::xyz_mask2();
-            const __m256 o = _mm256_set_m128(m.origin4, m.origin4), p = _mm256_set_m128(m.prescale4, m.prescale4);
-            const __m256 sc = _mm256_set_m128(m.scale4, m.scale4), last = _mm256_set_m128(m.last4, m.last4);
-            for (; i0 + 1 < n; i0 += 2) {
-                const __m256 lo = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].lo.x, &r[i0].lo.x), keep);
-                const __m256 hi = _mm256_and_ps(_mm256_loadu2_m128(&r[i0 + 1].hi.x, &r[i0].hi.x), keep);
-                __m256 f = _mm256_sub_ps(simd::centroid2(lo, hi), o);
-                if constexpr (Pre) f = _mm256_mul_ps(f, p);
-                f = _mm256_mul_ps(f, sc);
-                f = _mm256_min_ps(_mm256_max_ps(f, _mm256_setzero_ps()), last);
-                _mm256_store_si256(reinterpret_cast<__m256i*>(k[i0]), _mm256_cvttps_epi32(f));
-            }
-        }
-#endif
-        for (uint32_t i = i0; i < n; ++i)
-            _mm_store_si128(reinterpret_cast<__m128i*>(k[i]),
-                            m.template indices4<Pre>(simd::centroid(simd::lo(r[i]), simd::hi(r[i]))));
+        block_indices<Pre>(r, n, m, k);
         if (keys) store_keys(k, n, keys + b0);
         if constexpr (Two) {
             merged_updates(out, out.odd, r, k, n);
@@ -1016,6 +1023,145 @@ template <uint32_t Fixed>
         default: return detail::evaluate_fixed<0>(bins, m, node_bounds, opt);
     }
 }
+
+// Nodes of 4 bins (5 to 16 primitives with the default 32 bins, most of the
+// nodes evaluated) binned and evaluated in registers where AVX-512 is
+// compiled in: bin() and evaluate() for them, the same Split (axis, index,
+// left count and cost, bit for bit) and the same index rows left in
+// `bins.index` for partition_binned(); the bins themselves are not written.
+//
+// The twelve bins (4 on each axis) are the lanes a * 4 + b of seven 16-lane
+// vectors, one per component: lo x, y, z, hi x, y, z and the count. A record
+// updates its three lanes with masked minima and maxima of its broadcast
+// components (exact: the same boxes as the bins' minima of (lo, -hi), as the
+// records hold no -0 and no NaN; see simd::MinBox). The sweeps are then
+// prefix and suffix minima within each group of four lanes, and the costs
+// are formed lane for lane with the float operations of evaluate_sweeps()
+// and simd::Measure::three(): negated extents lo * s + (-hi * s) (written
+// lo * s - hi * s, the same IEEE result), then (x y + y z) + z x, or the
+// negated sum (x + y) + z for lengths; A_L n_L + A_R n_R. The cheapest
+// candidate wins, ties to the lowest lane, that is the lowest axis and then
+// the lowest index, as evaluate_sweeps() chooses.
+#if defined(__AVX512F__) && defined(__AVX512VL__)
+#define CANOPY_REGISTER_BINS 1
+// Lane i of the result: lane idx[i] of v. (The masked form, with v as the
+// source of lanes not taken, as all are: the unmasked intrinsics start from
+// an undefined vector, which GCC 12 warns about as maybe uninitialized.)
+inline __m512 permute(__m512i idx, __m512 v) { return _mm512_mask_permutexvar_ps(v, 0xFFFF, idx, v); }
+inline __m512i permute(__m512i idx, __m512i v) { return _mm512_mask_permutexvar_epi32(v, 0xFFFF, idx, v); }
+inline __m512 to_float(__m512i v) { return _mm512_mask_cvtepi32_ps(_mm512_castsi512_ps(v), 0xFFFF, v); }
+// The least of the lanes of `ok` in every lane (+inf when none).
+inline __m512 min_of(__m512 v, __mmask16 ok) {
+    v = _mm512_mask_mov_ps(_mm512_set1_ps(std::numeric_limits<float>::infinity()), ok, v);
+    v = _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7), v));
+    v = _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11), v));
+    v = _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13), v));
+    return _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14), v));
+}
+inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& bins,
+                            const Box& node_bounds, const BuildOptions& opt) {
+    assert(m.bins == 4 && !m.prescaled && end - begin <= kBinBlock);
+    const uint32_t n = std::min(end - begin, kBinBlock);
+    const PrimRef* r = refs + begin;
+    int32_t (*k)[4] = bins.index;
+    detail::block_indices<false>(r, n, m, k);
+
+    const __m512 inf = _mm512_set1_ps(std::numeric_limits<float>::infinity());
+    __m512 lx = inf, ly = inf, lz = inf;
+    __m512 hx = _mm512_sub_ps(_mm512_setzero_ps(), inf), hy = hx, hz = hx;
+    __m512i count = _mm512_setzero_si512();
+    const __m512i one = _mm512_set1_epi32(1);
+    // Lane a * 4 + b is bin b of axis a; lanes 12 to 15 match no index.
+    const __m512i lane_bin = _mm512_setr_epi32(0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2, 3, -1, -1, -1, -1);
+    // A record's index row (lanes 0 to 3 of its 128 bits) spread so that
+    // lane a * 4 + b holds its index on axis a.
+    const __m512i spread = _mm512_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3);
+    for (uint32_t i = 0; i < n; ++i) {
+        const __m512i row = _mm512_castsi128_si512(_mm_load_si128(reinterpret_cast<const __m128i*>(k[i])));
+        const __mmask16 in = _mm512_cmpeq_epi32_mask(permute(spread, row), lane_bin);
+        lx = _mm512_mask_min_ps(lx, in, lx, _mm512_set1_ps(r[i].lo.x));
+        ly = _mm512_mask_min_ps(ly, in, ly, _mm512_set1_ps(r[i].lo.y));
+        lz = _mm512_mask_min_ps(lz, in, lz, _mm512_set1_ps(r[i].lo.z));
+        hx = _mm512_mask_max_ps(hx, in, hx, _mm512_set1_ps(r[i].hi.x));
+        hy = _mm512_mask_max_ps(hy, in, hy, _mm512_set1_ps(r[i].hi.y));
+        hz = _mm512_mask_max_ps(hz, in, hz, _mm512_set1_ps(r[i].hi.z));
+        count = _mm512_mask_add_epi32(count, in, count, one);
+    }
+
+    Split best;
+    const bool use_length = !(node_bounds.half_area() > 0.0);
+    const simd::Measure measure(node_bounds, use_length);
+    const float parent = measure(simd::Box4::of(node_bounds));
+    if (!(parent > 0.0f)) return best;
+    const double inv_parent = 1.0 / double(parent);
+
+    // Inclusive prefix (bins 0..b) and suffix (bins b..3) within each axis's
+    // four lanes, in two steps each.
+    const __m512i back1 = _mm512_setr_epi32(0, 0, 1, 2, 4, 4, 5, 6, 8, 8, 9, 10, 12, 12, 13, 14);
+    const __m512i back2 = _mm512_setr_epi32(0, 1, 0, 1, 4, 5, 4, 5, 8, 9, 8, 9, 12, 13, 12, 13);
+    const __m512i ahead1 = _mm512_setr_epi32(1, 2, 3, 3, 5, 6, 7, 7, 9, 10, 11, 11, 13, 14, 15, 15);
+    const __m512i ahead2 = _mm512_setr_epi32(2, 3, 2, 3, 6, 7, 6, 7, 10, 11, 10, 11, 14, 15, 14, 15);
+    constexpr __mmask16 b_ge1 = 0xEEEE, b_ge2 = 0xCCCC, b_le2 = 0x7777, b_le1 = 0x3333;
+    const auto prefix_min = [&](__m512 v) {
+        v = _mm512_mask_min_ps(v, b_ge1, v, permute(back1, v));
+        return _mm512_mask_min_ps(v, b_ge2, v, permute(back2, v));
+    };
+    const auto prefix_max = [&](__m512 v) {
+        v = _mm512_mask_max_ps(v, b_ge1, v, permute(back1, v));
+        return _mm512_mask_max_ps(v, b_ge2, v, permute(back2, v));
+    };
+    const auto suffix_min = [&](__m512 v) {
+        v = _mm512_mask_min_ps(v, b_le2, v, permute(ahead1, v));
+        return _mm512_mask_min_ps(v, b_le1, v, permute(ahead2, v));
+    };
+    const auto suffix_max = [&](__m512 v) {
+        v = _mm512_mask_max_ps(v, b_le2, v, permute(ahead1, v));
+        return _mm512_mask_max_ps(v, b_le1, v, permute(ahead2, v));
+    };
+    const __m512 s = _mm512_set1_ps(_mm_cvtss_f32(measure.scale));
+    // The measure of boxes, lane for lane.
+    const auto measure_of = [&](__m512 x0, __m512 y0, __m512 z0, __m512 x1, __m512 y1, __m512 z1) {
+        const __m512 x = _mm512_sub_ps(_mm512_mul_ps(x0, s), _mm512_mul_ps(x1, s));
+        const __m512 y = _mm512_sub_ps(_mm512_mul_ps(y0, s), _mm512_mul_ps(y1, s));
+        const __m512 z = _mm512_sub_ps(_mm512_mul_ps(z0, s), _mm512_mul_ps(z1, s));
+        if (use_length)  // negated by its sign bit, as simd::negate()
+            return _mm512_castsi512_ps(_mm512_xor_si512(_mm512_castps_si512(_mm512_add_ps(_mm512_add_ps(x, y), z)),
+                                                        _mm512_set1_epi32(std::numeric_limits<int32_t>::min())));
+        return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(x, y), _mm512_mul_ps(y, z)), _mm512_mul_ps(z, x));
+    };
+    // Candidate a * 4 + j (j = 1..3: bins [0, j) left): its left side is the
+    // prefix of lane a * 4 + j - 1, its right side the suffix of its own lane.
+    const auto left_of = [&](__m512 prefix) { return permute(back1, prefix); };
+    const __m512 left_measure =
+        measure_of(left_of(prefix_min(lx)), left_of(prefix_min(ly)), left_of(prefix_min(lz)),
+                   left_of(prefix_max(hx)), left_of(prefix_max(hy)), left_of(prefix_max(hz)));
+    const __m512 right_measure = measure_of(suffix_min(lx), suffix_min(ly), suffix_min(lz), suffix_max(hx),
+                                            suffix_max(hy), suffix_max(hz));
+    __m512i left_count = _mm512_mask_add_epi32(count, b_ge1, count, permute(back1, count));
+    left_count = _mm512_mask_add_epi32(left_count, b_ge2, left_count, permute(back2, left_count));
+    left_count = permute(back1, left_count);
+    __m512i right_count = _mm512_mask_add_epi32(count, b_le2, count, permute(ahead1, count));
+    right_count = _mm512_mask_add_epi32(right_count, b_le1, right_count, permute(ahead2, right_count));
+    const __m512 sum = _mm512_add_ps(_mm512_mul_ps(left_measure, to_float(left_count)),
+                                     _mm512_mul_ps(right_measure, to_float(right_count)));
+    // Candidates: split index 1 to 3 of a valid axis, both sides non-empty.
+    const __mmask16 valid = __mmask16((m.valid[0] ? 0x000E : 0) | (m.valid[1] ? 0x00E0 : 0) | (m.valid[2] ? 0x0E00 : 0));
+    const __mmask16 ok = _mm512_mask_cmpneq_epi32_mask(_mm512_mask_cmpneq_epi32_mask(valid, left_count, _mm512_setzero_si512()),
+                                                       right_count, _mm512_setzero_si512());
+    if (ok == 0) return best;
+    const __m512 low = min_of(sum, ok);
+    const uint32_t lane = uint32_t(std::countr_zero(unsigned(_mm512_mask_cmpeq_ps_mask(ok, sum, low))));
+    alignas(64) int32_t lefts[16];
+    _mm512_store_si512(lefts, left_count);
+    best.axis = int(lane / 4);
+    best.index = lane % 4;
+    best.left_count = uint32_t(lefts[lane]);
+    best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm512_cvtss_f32(low)) * inv_parent;
+    return best;
+}
+#else
+#define CANOPY_REGISTER_BINS 0
+#endif
 
 // The size split. Binning orders primitives by where their centroids are. A
 // node holding a few primitives far larger than the rest (a room's walls and
@@ -2147,13 +2293,21 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     }
     skip.axes_not_binned += 3 - m.valid_count();
     assert(m.bins <= bins.max_bins());
-    bins.clear(m.bins);
     // Nodes partitioned by their keys (larger than kBinBlock) get them in
     // the permutation's slots of their range, which only their leaves
     // write, later.
     uint32_t* const keys = t.size() > kBinBlock ? ctx.permutation : nullptr;
-    bin(ctx.refs, t.begin, t.end, m, bins, keys);
-    Split s = evaluate(bins, m, t.bounds, opt);
+    Split s;
+#if CANOPY_REGISTER_BINS
+    if (m.bins == 4 && !m.prescaled && t.size() <= kBinBlock) {
+        s = bin_evaluate_4(ctx.refs, t.begin, t.end, m, bins, t.bounds, opt);
+    } else
+#endif
+    {
+        bins.clear(m.bins);
+        bin(ctx.refs, t.begin, t.end, m, bins, keys);
+        s = evaluate(bins, m, t.bounds, opt);
+    }
     if (t.size() >= kSizeSplitMinPrims) {
         const SizeCuts cuts = SizeCuts::of(t.bounds);
         if (cuts.applies(t)) {

@@ -617,6 +617,55 @@ TEST(KernelEvaluate, FourBinSweepsMatchTheGeneralOnes) {
     EXPECT_GT(found, 300u);
 }
 
+TEST(KernelEvaluate, RegisterBinsMatchBinAndEvaluate) {
+    // Nodes of 4 bins are binned and evaluated in registers where AVX-512 is
+    // compiled in (bin_evaluate_4()); the split, its cost and the index rows
+    // partition_binned() reads must be those of bin() and evaluate(), on
+    // nodes with empty bins, flat axes, coincident centroids, mirror-image
+    // ties, lines (length measure) and 5 to 64 records (more than 16 have 4
+    // bins when the build asks for 4).
+#if CANOPY_REGISTER_BINS
+    BuildOptions opt;
+    uint32_t found = 0, compared = 0;
+    for (uint32_t seed = 0; seed < 1200; ++seed) {
+        const uint32_t n = 5 + (seed % 3 == 2 ? seed % 60 : seed % 12);
+        std::vector<PrimRef> refs = random_refs(n + 3, 9100 + seed, seed % 2 ? 10.0f : 1e-3f, 1.0f);
+        if (seed % 4 == 1)
+            for (auto& r : refs) {
+                r.hi.y = r.lo.y = -2.0f;
+                refresh_area(r);
+            }
+        if (seed % 6 == 2) refs[4] = make_ref(refs[3].lo, refs[3].hi, 4);
+        if (seed % 8 == 3)  // mirror images: equal costs on two axes
+            for (uint32_t i = 0; i < refs.size(); ++i) refs[i] = cube(Vec3(float(i), float(i), 0.0f), 0.25f, i);
+        if (seed % 10 == 5)  // points on a line: zero area, the length measure
+            for (uint32_t i = 0; i < refs.size(); ++i)
+                refs[i] = make_ref(Vec3(float(i % 5), 0, 0), Vec3(float(i % 5), 0, 0), i);
+        opt.traversal_cost = seed % 3 == 0 ? 1.0f : 0.25f;
+        const NodeTask t = task_of(refs, 3, 3 + n);
+        const BinMapper m = BinMapper::make(t.cbounds, canopy::bins_for(n, n <= 16 ? 32 : 4));
+        ASSERT_EQ(m.bins, 4u) << n;
+        if (!m.any_valid() || m.prescaled) continue;
+        const auto expect_bins = binned(refs, 3, 3 + n, m);
+        const Split a = canopy::evaluate(*expect_bins, m, t.bounds, opt);
+        BinSet regs(32);
+        const Split b = canopy::bin_evaluate_4(refs.data(), 3, 3 + n, m, regs, t.bounds, opt);
+        ASSERT_EQ(a.axis, b.axis) << seed;
+        EXPECT_EQ(a.index, b.index) << seed;
+        EXPECT_EQ(a.left_count, b.left_count) << seed;
+        EXPECT_EQ(a.cost, b.cost) << seed;
+        for (uint32_t i = 0; i < n; ++i)
+            for (int k = 0; k < 3; ++k) ASSERT_EQ(regs.index[i][k], expect_bins->index[i][k]) << seed;
+        found += a.found();
+        ++compared;
+    }
+    EXPECT_GT(compared, 1000u);
+    EXPECT_GT(found, 800u);
+#else
+    GTEST_SKIP() << "built without AVX-512: nodes of 4 bins take bin() and evaluate()";
+#endif
+}
+
 TEST(KernelEvaluate, NoSplitWhenNothingIsValid) {
     // Coincident centroids: no axis is valid.
     std::vector<PrimRef> refs;
