@@ -84,23 +84,32 @@ struct SkipCounts {
 inline constexpr uint32_t kWideBinsMin = 1u << 16;
 inline constexpr uint32_t kWidestBinsMin = 1u << 19;
 
-// Bins for a node of n primitives: min(bins, max(4, bit_ceil(n) / 4)), and at
-// least 2; from kWideBinsMin primitives up, min(256, 2 * bins); from
-// kWidestBinsMin up, min(256, 4 * bins).
+// Bins for a node of n primitives: min(bins, 4) up to 32 primitives, else
+// min(bins, bit_ceil(n) / 4), and at least 2; from kWideBinsMin primitives
+// up, min(256, 2 * bins); from kWidestBinsMin up, min(256, 4 * bins).
 // Small nodes, which are most nodes, use fewer bins: clearing and sweeping
 // bins is the fixed cost of a node (with bit_ceil(n) / 2, nodes of 5 to 64
 // primitives took 43% of a 1M-sphere build at 600 to 3,700 cycles per node; a
-// quarter keeps about 4 primitives per bin). The few huge nodes near the root
-// use more: their cost is the pass over their records, not the bins, and they
-// are where an object far smaller than the node must not be cut by a bin
-// boundary (the 1M stadium's dense sphere sat across the middle boundary of
-// the root's 32 bins: SAH 35.19, with 64 there 32.68). The 4M stadium
-// needed more in its nodes of one to four million records: SAH 39.40 with
-// 64 bins there, 36.76 with 128 (Embree's rtcBuildBVH: 37.15).
+// quarter keeps about 4 primitives per bin). Nodes of 17 to 32 primitives
+// had 8 bins until 2026-12-05, when 4-bin nodes came to be binned in
+// registers (bin_evaluate_4()): with 4 they took the sequential builds
+// 0.978x-0.986x as long (1M sphere, stadium, random; dragon_vrip_res2;
+// alternated, 7 rounds) for SAH +0.00% to +0.3% (1M random 383.15 ->
+// 384.26, dragon_vrip_res2 43.344 -> 43.423; every mesh of ../shared/scenes
+// within 0.9% of the exact sweep, all scenes below Embree's rtcBuildBVH
+// but the 1M stadium, as before). 8 bins for 33 to 64 as well (0.968x)
+// put Sibenik 2.6% above the exact sweep: not taken. The few huge nodes
+// near the root use more: their cost is the pass over their records, not
+// the bins, and they are where an object far smaller than the node must not
+// be cut by a bin boundary (the 1M stadium's dense sphere sat across the
+// middle boundary of the root's 32 bins: SAH 35.19, with 64 there 32.68).
+// The 4M stadium needed more in its nodes of one to four million records:
+// SAH 39.40 with 64 bins there, 36.76 with 128 (Embree's rtcBuildBVH:
+// 37.15).
 inline uint32_t bins_for(uint32_t n, uint32_t bins) {
     if (n >= kWidestBinsMin) return std::min(kMaxBins, 4 * bins);
     if (n >= kWideBinsMin) return std::min(kMaxBins, 2 * bins);
-    const uint32_t quarter = n >= 2 ? std::bit_floor(n - 1) / 2 : 0;  // bit_ceil(n) / 4 without overflow
+    const uint32_t quarter = n <= 32 ? 4 : std::bit_floor(n - 1) / 2;  // bit_ceil(n) / 4 without overflow
     return std::max(kMinBins, std::min(bins, std::max(4u, quarter)));
 }
 
@@ -1009,11 +1018,12 @@ template <uint32_t Fixed>
 }  // namespace detail
 
 // Nodes of up to 64 primitives, almost all of the nodes evaluated, have 4,
-// 8 or 16 bins (bins_for()), and those of up to 16 primitives (4 bins) are
-// 4/5 of the evaluations of a 1M sphere: for these bin counts the sweeps
-// have a fixed trip count. (The 4-bin case with partition_binned(): the
-// sequential build took 0.97x as long on the 1M sphere and 0.95x on
-// dragon_vrip_res2, medians of 8 alternated runs, 6% fewer instructions.)
+// 8 or 16 bins (bins_for()), and those of up to 16 primitives (4 bins; up
+// to 32 since 2026-12-05) were 4/5 of the evaluations of a 1M sphere: for
+// these bin counts the sweeps have a fixed trip count. (The 4-bin case
+// with partition_binned(): the sequential build took 0.97x as long on the
+// 1M sphere and 0.95x on dragon_vrip_res2, medians of 8 alternated runs, 6%
+// fewer instructions.)
 [[gnu::always_inline]] inline Split evaluate(const BinSet& bins, const BinMapper& m, const Box& node_bounds,
                                              const BuildOptions& opt) {
     switch (m.bins) {
@@ -1024,7 +1034,7 @@ template <uint32_t Fixed>
     }
 }
 
-// Nodes of 4 bins (5 to 16 primitives with the default 32 bins, most of the
+// Nodes of 4 bins (5 to 32 primitives with the default 32 bins, most of the
 // nodes evaluated) binned and evaluated in registers where AVX-512 is
 // compiled in: bin() and evaluate() for them, the same Split (axis, index,
 // left count and cost, bit for bit) and the same index rows left in
