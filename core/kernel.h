@@ -1062,11 +1062,12 @@ inline __m512i permute(__m512i idx, __m512i v) { return _mm512_mask_permutexvar_
 inline __m512 to_float(__m512i v) { return _mm512_mask_cvtepi32_ps(_mm512_castsi512_ps(v), 0xFFFF, v); }
 // The least of the lanes of `ok` in every lane (+inf when none).
 inline __m512 min_of(__m512 v, __mmask16 ok) {
+    const auto step = [](__m512 x, __m512i idx) { return _mm512_mask_min_ps(x, 0xFFFF, x, permute(idx, x)); };
     v = _mm512_mask_mov_ps(_mm512_set1_ps(std::numeric_limits<float>::infinity()), ok, v);
-    v = _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7), v));
-    v = _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11), v));
-    v = _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13), v));
-    return _mm512_mask_min_ps(v, 0xFFFF, v, permute(_mm512_setr_epi32(1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14), v));
+    v = step(v, _mm512_setr_epi32(8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7));
+    v = step(v, _mm512_setr_epi32(4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11));
+    v = step(v, _mm512_setr_epi32(2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13));
+    return step(v, _mm512_setr_epi32(1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14));
 }
 inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& bins,
                             const Box& node_bounds, const BuildOptions& opt) {
@@ -1155,9 +1156,11 @@ inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, c
     const __m512 sum = _mm512_add_ps(_mm512_mul_ps(left_measure, to_float(left_count)),
                                      _mm512_mul_ps(right_measure, to_float(right_count)));
     // Candidates: split index 1 to 3 of a valid axis, both sides non-empty.
-    const __mmask16 valid = __mmask16((m.valid[0] ? 0x000E : 0) | (m.valid[1] ? 0x00E0 : 0) | (m.valid[2] ? 0x0E00 : 0));
-    const __mmask16 ok = _mm512_mask_cmpneq_epi32_mask(_mm512_mask_cmpneq_epi32_mask(valid, left_count, _mm512_setzero_si512()),
-                                                       right_count, _mm512_setzero_si512());
+    const __mmask16 valid =
+        __mmask16((m.valid[0] ? 0x000E : 0) | (m.valid[1] ? 0x00E0 : 0) | (m.valid[2] ? 0x0E00 : 0));
+    const __m512i zero = _mm512_setzero_si512();
+    const __mmask16 ok =
+        _mm512_mask_cmpneq_epi32_mask(_mm512_mask_cmpneq_epi32_mask(valid, left_count, zero), right_count, zero);
     if (ok == 0) return best;
     const __m512 low = min_of(sum, ok);
     const uint32_t lane = uint32_t(std::countr_zero(unsigned(_mm512_mask_cmpeq_ps_mask(ok, sum, low))));
