@@ -1113,22 +1113,17 @@ inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, c
     const __m512i ahead1 = _mm512_setr_epi32(1, 2, 3, 3, 5, 6, 7, 7, 9, 10, 11, 11, 13, 14, 15, 15);
     const __m512i ahead2 = _mm512_setr_epi32(2, 3, 2, 3, 6, 7, 6, 7, 10, 11, 10, 11, 14, 15, 14, 15);
     constexpr __mmask16 b_ge1 = 0xEEEE, b_ge2 = 0xCCCC, b_le2 = 0x7777, b_le1 = 0x3333;
-    const auto prefix_min = [&](__m512 v) {
-        v = _mm512_mask_min_ps(v, b_ge1, v, permute(back1, v));
-        return _mm512_mask_min_ps(v, b_ge2, v, permute(back2, v));
+    const auto vmin = [](__m512 v, __mmask16 k, __m512 w) { return _mm512_mask_min_ps(v, k, v, w); };
+    const auto vmax = [](__m512 v, __mmask16 k, __m512 w) { return _mm512_mask_max_ps(v, k, v, w); };
+    // Two steps of op, from the lanes one and then two bins back (or ahead).
+    const auto sweep = [&](__m512 v, auto op, bool back) {
+        v = op(v, back ? b_ge1 : b_le2, permute(back ? back1 : ahead1, v));
+        return op(v, back ? b_ge2 : b_le1, permute(back ? back2 : ahead2, v));
     };
-    const auto prefix_max = [&](__m512 v) {
-        v = _mm512_mask_max_ps(v, b_ge1, v, permute(back1, v));
-        return _mm512_mask_max_ps(v, b_ge2, v, permute(back2, v));
-    };
-    const auto suffix_min = [&](__m512 v) {
-        v = _mm512_mask_min_ps(v, b_le2, v, permute(ahead1, v));
-        return _mm512_mask_min_ps(v, b_le1, v, permute(ahead2, v));
-    };
-    const auto suffix_max = [&](__m512 v) {
-        v = _mm512_mask_max_ps(v, b_le2, v, permute(ahead1, v));
-        return _mm512_mask_max_ps(v, b_le1, v, permute(ahead2, v));
-    };
+    const auto prefix_min = [&](__m512 v) { return sweep(v, vmin, true); };
+    const auto prefix_max = [&](__m512 v) { return sweep(v, vmax, true); };
+    const auto suffix_min = [&](__m512 v) { return sweep(v, vmin, false); };
+    const auto suffix_max = [&](__m512 v) { return sweep(v, vmax, false); };
     const __m512 s = _mm512_set1_ps(_mm_cvtss_f32(measure.scale));
     // The measure of boxes, lane for lane.
     const auto measure_of = [&](__m512 x0, __m512 y0, __m512 z0, __m512 x1, __m512 y1, __m512 z1) {

@@ -582,6 +582,27 @@ TEST(KernelEvaluate, TiesGoToLowestAxisThenLowestIndex) {
     EXPECT_EQ(s.index, 3u);
 }
 
+namespace {
+
+// `size` random records (seeded by rng_seed) in one of the variants that
+// test evaluations' corner cases (by `variant`): small or large extents,
+// every record flat on y, the record after `first` a copy of it, or
+// mirror images (equal costs on two axes).
+std::vector<PrimRef> varied_refs(uint32_t size, uint32_t rng_seed, uint32_t variant, uint32_t first) {
+    std::vector<PrimRef> refs = random_refs(size, rng_seed, variant % 2 ? 10.0f : 1e-3f, 1.0f);
+    if (variant % 4 == 1)
+        for (auto& r : refs) {
+            r.hi.y = r.lo.y = -2.0f;
+            refresh_area(r);
+        }
+    if (variant % 6 == 2) refs[first + 1] = make_ref(refs[first].lo, refs[first].hi, first + 1);
+    if (variant % 8 == 3)
+        for (uint32_t i = 0; i < size; ++i) refs[i] = cube(Vec3(float(i), float(i), 0.0f), 0.25f, i);
+    return refs;
+}
+
+}  // namespace
+
 TEST(KernelEvaluate, FourBinSweepsMatchTheGeneralOnes) {
     // evaluate() runs nodes of 4 bins through unrolled sweeps; they must pick
     // what the general sweeps pick, cost included, on nodes with empty bins,
@@ -590,15 +611,7 @@ TEST(KernelEvaluate, FourBinSweepsMatchTheGeneralOnes) {
     uint32_t found = 0;
     for (uint32_t seed = 0; seed < 400; ++seed) {
         const uint32_t n = 2 + seed % 15;
-        std::vector<PrimRef> refs = random_refs(n, 7000 + seed, seed % 2 ? 10.0f : 1e-3f, 1.0f);
-        if (seed % 4 == 1)
-            for (auto& r : refs) {
-                r.hi.y = r.lo.y = -2.0f;
-                refresh_area(r);
-            }
-        if (seed % 6 == 2) refs[1] = make_ref(refs[0].lo, refs[0].hi, 1);
-        if (seed % 8 == 3)  // mirror images: equal costs on two axes
-            for (uint32_t i = 0; i < n; ++i) refs[i] = cube(Vec3(float(i), float(i), 0.0f), 0.25f, i);
+        const std::vector<PrimRef> refs = varied_refs(n, 7000 + seed, seed, 0);
         const NodeTask t = task_of(refs, 0, n);
         const BinMapper m = BinMapper::make(t.cbounds, 4);
         if (!m.any_valid()) continue;
@@ -629,15 +642,7 @@ TEST(KernelEvaluate, RegisterBinsMatchBinAndEvaluate) {
     uint32_t found = 0, compared = 0;
     for (uint32_t seed = 0; seed < 1200; ++seed) {
         const uint32_t n = 5 + (seed % 3 == 2 ? seed % 60 : seed % 12);
-        std::vector<PrimRef> refs = random_refs(n + 3, 9100 + seed, seed % 2 ? 10.0f : 1e-3f, 1.0f);
-        if (seed % 4 == 1)
-            for (auto& r : refs) {
-                r.hi.y = r.lo.y = -2.0f;
-                refresh_area(r);
-            }
-        if (seed % 6 == 2) refs[4] = make_ref(refs[3].lo, refs[3].hi, 4);
-        if (seed % 8 == 3)  // mirror images: equal costs on two axes
-            for (uint32_t i = 0; i < refs.size(); ++i) refs[i] = cube(Vec3(float(i), float(i), 0.0f), 0.25f, i);
+        std::vector<PrimRef> refs = varied_refs(n + 3, 9100 + seed, seed, 3);
         if (seed % 10 == 5)  // points on a line: zero area, the length measure
             for (uint32_t i = 0; i < refs.size(); ++i)
                 refs[i] = make_ref(Vec3(float(i % 5), 0, 0), Vec3(float(i % 5), 0, 0), i);
