@@ -1930,6 +1930,39 @@ TEST(KernelExactSplit, CheapestAndNeverWorseThanTheBins) {
     EXPECT_GT(equal, 200u);
 }
 
+TEST(KernelExactSplit, RegistersMatchMemory) {
+    // Where AVX-512 is compiled in, exact_split() works in registers; it
+    // must return what the memory version returns, mask and cost bit for
+    // bit, on random small nodes, the corner cases of varied_refs() and
+    // lines (the length measure), with random costs.
+#if CANOPY_REGISTER_BINS
+    std::mt19937 rng(777);
+    uint32_t found = 0;
+    for (uint32_t trial = 0; trial < 6000; ++trial) {
+        BuildOptions opt;
+        opt.traversal_cost = uniform(rng, 0.1f, 3.0f);
+        opt.intersection_cost = uniform(rng, 0.1f, 3.0f);
+        const uint32_t n = 2 + trial % (canopy::kExactMaxPrims - 1);
+        std::vector<PrimRef> refs = trial % 3 == 0 ? random_small_node(rng, n) : varied_refs(n, 500 + trial, trial, 0);
+        if (trial % 7 == 4)
+            for (uint32_t i = 0; i < n; ++i) refs[i] = make_ref(Vec3(float(i % 3), 0, 0), Vec3(float(i % 3), 0, 0), i);
+        const NodeTask t = task_of(refs, 0, n);
+        uint32_t left_mem = 0, left_reg = 0;
+        double cost_mem = 0.0, cost_reg = 0.0;
+        const bool mem = canopy::exact_split_in_memory(refs.data(), n, t.bounds, opt, left_mem, cost_mem);
+        const bool reg = canopy::exact_split_in_registers(refs.data(), n, t.bounds, opt, left_reg, cost_reg);
+        ASSERT_EQ(mem, reg) << trial;
+        if (!mem) continue;
+        ASSERT_EQ(left_mem, left_reg) << trial;
+        ASSERT_EQ(cost_mem, cost_reg) << trial;
+        ++found;
+    }
+    EXPECT_GT(found, 5000u);
+#else
+    GTEST_SKIP() << "built without AVX-512: exact_split() is the memory version";
+#endif
+}
+
 TEST(KernelEvaluate, NodesOfAtLeast2To31PrimitivesUseTheUnsignedConversion) {
     // Counts of a node of 2^31 primitives or more do not fit the signed
     // conversion the sweeps use first; evaluate() must notice (from the
