@@ -1069,6 +1069,42 @@ inline __m512 min_of(__m512 v, __mmask16 ok) {
     v = step(v, _mm512_setr_epi32(2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13));
     return step(v, _mm512_setr_epi32(1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14));
 }
+// Boxes as the lanes of six 16-lane vectors, one per component: lo x, y, z
+// (minima) and hi x, y, z (maxima); empty to begin with.
+struct LaneBoxes {
+    __m512 lo[3], hi[3];
+    LaneBoxes() {
+        const __m512 inf = _mm512_set1_ps(std::numeric_limits<float>::infinity());
+        const __m512 ninf = _mm512_sub_ps(_mm512_setzero_ps(), inf);
+        for (int c = 0; c < 3; ++c) {
+            lo[c] = inf;
+            hi[c] = ninf;
+        }
+    }
+    // Grows the boxes of the lanes of `in` by record x's box (exact: the
+    // boxes the bins' minima of (lo, -hi) hold, as the records hold no -0
+    // and no NaN; see simd::MinBox).
+    void add(const PrimRef& x, __mmask16 in) {
+        for (int c = 0; c < 3; ++c) {
+            lo[c] = _mm512_mask_min_ps(lo[c], in, lo[c], _mm512_set1_ps((&x.lo.x)[c]));
+            hi[c] = _mm512_mask_max_ps(hi[c], in, hi[c], _mm512_set1_ps((&x.hi.x)[c]));
+        }
+    }
+    // The measure of every lane's box with the float operations of
+    // simd::Measure::three(): negated extents lo * s + (-hi * s) (written
+    // lo * s - hi * s, the same IEEE result), then (x y + y z) + z x, or the
+    // negated sum (x + y) + z for lengths.
+    __m512 measure(const simd::Measure& m) const {
+        const __m512 s = _mm512_set1_ps(_mm_cvtss_f32(m.scale));
+        const auto neg_extent = [&](int c) { return _mm512_sub_ps(_mm512_mul_ps(lo[c], s), _mm512_mul_ps(hi[c], s)); };
+        const __m512 x = neg_extent(0), y = neg_extent(1), z = neg_extent(2);
+        if (m.use_length)  // negated by its sign bit, as simd::negate()
+            return _mm512_castsi512_ps(_mm512_xor_si512(_mm512_castps_si512(_mm512_add_ps(_mm512_add_ps(x, y), z)),
+                                                        _mm512_set1_epi32(std::numeric_limits<int32_t>::min())));
+        return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(x, y), _mm512_mul_ps(y, z)), _mm512_mul_ps(z, x));
+    }
+};
+
 inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& bins,
                             const Box& node_bounds, const BuildOptions& opt) {
     assert(m.bins == 4 && !m.prescaled && end - begin <= kBinBlock);
@@ -1077,9 +1113,7 @@ inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, c
     int32_t (*k)[4] = bins.index;
     detail::block_indices<false>(r, n, m, k);
 
-    const __m512 inf = _mm512_set1_ps(std::numeric_limits<float>::infinity());
-    __m512 lx = inf, ly = inf, lz = inf;
-    __m512 hx = _mm512_sub_ps(_mm512_setzero_ps(), inf), hy = hx, hz = hx;
+    LaneBoxes bin;
     __m512i count = _mm512_setzero_si512();
     const __m512i one = _mm512_set1_epi32(1);
     // Lane a * 4 + b is bin b of axis a; lanes 12 to 15 match no index.
@@ -1090,12 +1124,7 @@ inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, c
     for (uint32_t i = 0; i < n; ++i) {
         const __m512i row = _mm512_castsi128_si512(_mm_load_si128(reinterpret_cast<const __m128i*>(k[i])));
         const __mmask16 in = _mm512_cmpeq_epi32_mask(permute(spread, row), lane_bin);
-        lx = _mm512_mask_min_ps(lx, in, lx, _mm512_set1_ps(r[i].lo.x));
-        ly = _mm512_mask_min_ps(ly, in, ly, _mm512_set1_ps(r[i].lo.y));
-        lz = _mm512_mask_min_ps(lz, in, lz, _mm512_set1_ps(r[i].lo.z));
-        hx = _mm512_mask_max_ps(hx, in, hx, _mm512_set1_ps(r[i].hi.x));
-        hy = _mm512_mask_max_ps(hy, in, hy, _mm512_set1_ps(r[i].hi.y));
-        hz = _mm512_mask_max_ps(hz, in, hz, _mm512_set1_ps(r[i].hi.z));
+        bin.add(r[i], in);
         count = _mm512_mask_add_epi32(count, in, count, one);
     }
 
@@ -1120,29 +1149,16 @@ inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, c
         v = op(v, back ? b_ge1 : b_le2, permute(back ? back1 : ahead1, v));
         return op(v, back ? b_ge2 : b_le1, permute(back ? back2 : ahead2, v));
     };
-    const auto prefix_min = [&](__m512 v) { return sweep(v, vmin, true); };
-    const auto prefix_max = [&](__m512 v) { return sweep(v, vmax, true); };
-    const auto suffix_min = [&](__m512 v) { return sweep(v, vmin, false); };
-    const auto suffix_max = [&](__m512 v) { return sweep(v, vmax, false); };
-    const __m512 s = _mm512_set1_ps(_mm_cvtss_f32(measure.scale));
-    // The measure of boxes, lane for lane.
-    const auto measure_of = [&](__m512 x0, __m512 y0, __m512 z0, __m512 x1, __m512 y1, __m512 z1) {
-        const __m512 x = _mm512_sub_ps(_mm512_mul_ps(x0, s), _mm512_mul_ps(x1, s));
-        const __m512 y = _mm512_sub_ps(_mm512_mul_ps(y0, s), _mm512_mul_ps(y1, s));
-        const __m512 z = _mm512_sub_ps(_mm512_mul_ps(z0, s), _mm512_mul_ps(z1, s));
-        if (use_length)  // negated by its sign bit, as simd::negate()
-            return _mm512_castsi512_ps(_mm512_xor_si512(_mm512_castps_si512(_mm512_add_ps(_mm512_add_ps(x, y), z)),
-                                                        _mm512_set1_epi32(std::numeric_limits<int32_t>::min())));
-        return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(x, y), _mm512_mul_ps(y, z)), _mm512_mul_ps(z, x));
-    };
     // Candidate a * 4 + j (j = 1..3: bins [0, j) left): its left side is the
     // prefix of lane a * 4 + j - 1, its right side the suffix of its own lane.
-    const auto left_of = [&](__m512 prefix) { return permute(back1, prefix); };
-    const __m512 left_measure =
-        measure_of(left_of(prefix_min(lx)), left_of(prefix_min(ly)), left_of(prefix_min(lz)),
-                   left_of(prefix_max(hx)), left_of(prefix_max(hy)), left_of(prefix_max(hz)));
-    const __m512 right_measure = measure_of(suffix_min(lx), suffix_min(ly), suffix_min(lz), suffix_max(hx),
-                                            suffix_max(hy), suffix_max(hz));
+    LaneBoxes left, right;
+    for (int c = 0; c < 3; ++c) {
+        left.lo[c] = permute(back1, sweep(bin.lo[c], vmin, true));
+        left.hi[c] = permute(back1, sweep(bin.hi[c], vmax, true));
+        right.lo[c] = sweep(bin.lo[c], vmin, false);
+        right.hi[c] = sweep(bin.hi[c], vmax, false);
+    }
+    const __m512 left_measure = left.measure(measure), right_measure = right.measure(measure);
     __m512i left_count = _mm512_mask_add_epi32(count, b_ge1, count, permute(back1, count));
     left_count = _mm512_mask_add_epi32(left_count, b_ge2, left_count, permute(back2, left_count));
     left_count = permute(back1, left_count);
@@ -2175,10 +2191,9 @@ inline bool exact_split_in_memory(const PrimRef* r, uint32_t n, const Box& node_
 }
 
 #if CANOPY_REGISTER_BINS
-// exact_split() in AVX-512 registers: lane `mask` of six 16-lane vectors
-// holds the box of the records in mask (lo x, y, z as minima, hi x, y, z as
-// maxima, over the records whose bit is set: bit j of the lane numbers is
-// set in the constant lane masks 0xAAAA, 0xCCCC, 0xF0F0, 0xFF00), every
+// exact_split() in AVX-512 registers: lane `mask` of LaneBoxes holds the
+// box of the records in mask (record j grows the lanes whose number has bit
+// j set: the constant lane masks 0xAAAA, 0xCCCC, 0xF0F0, 0xFF00), every
 // lane's measure is formed with the float operations of
 // simd::Measure::three(), and A_L n_L + A_R n_R as exact_split_in_memory()
 // forms it (the rest's lane found by xor with the full mask); the cheapest
@@ -2194,26 +2209,9 @@ inline bool exact_split_in_registers(const PrimRef* r, uint32_t n, const Box& no
     if (!(parent > 0.0f)) return false;
     const double inv_parent = 1.0 / double(parent);
     constexpr __mmask16 has[4] = {0xAAAA, 0xCCCC, 0xF0F0, 0xFF00};  // lanes whose mask holds record j
-    const __m512 inf = _mm512_set1_ps(std::numeric_limits<float>::infinity());
-    const __m512 ninf = _mm512_sub_ps(_mm512_setzero_ps(), inf);
-    __m512 lx = inf, ly = inf, lz = inf, hx = ninf, hy = ninf, hz = ninf;
-    for (uint32_t j = 0; j < n; ++j) {
-        const __mmask16 k = has[j];
-        lx = _mm512_mask_min_ps(lx, k, lx, _mm512_set1_ps(r[j].lo.x));
-        ly = _mm512_mask_min_ps(ly, k, ly, _mm512_set1_ps(r[j].lo.y));
-        lz = _mm512_mask_min_ps(lz, k, lz, _mm512_set1_ps(r[j].lo.z));
-        hx = _mm512_mask_max_ps(hx, k, hx, _mm512_set1_ps(r[j].hi.x));
-        hy = _mm512_mask_max_ps(hy, k, hy, _mm512_set1_ps(r[j].hi.y));
-        hz = _mm512_mask_max_ps(hz, k, hz, _mm512_set1_ps(r[j].hi.z));
-    }
-    const __m512 s = _mm512_set1_ps(_mm_cvtss_f32(measure.scale));
-    const __m512 x = _mm512_sub_ps(_mm512_mul_ps(lx, s), _mm512_mul_ps(hx, s));
-    const __m512 y = _mm512_sub_ps(_mm512_mul_ps(ly, s), _mm512_mul_ps(hy, s));
-    const __m512 z = _mm512_sub_ps(_mm512_mul_ps(lz, s), _mm512_mul_ps(hz, s));
-    const __m512 measures =
-        use_length ? _mm512_castsi512_ps(_mm512_xor_si512(_mm512_castps_si512(_mm512_add_ps(_mm512_add_ps(x, y), z)),
-                                                          _mm512_set1_epi32(std::numeric_limits<int32_t>::min())))
-                   : _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(x, y), _mm512_mul_ps(y, z)), _mm512_mul_ps(z, x));
+    LaneBoxes sub;
+    for (uint32_t j = 0; j < n; ++j) sub.add(r[j], has[j]);
+    const __m512 measures = sub.measure(measure);
     // measure * popcount per lane, and the same of the rest (lane full ^ mask).
     const __m512 counts = _mm512_setr_ps(0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4);
     const __m512 weighted = _mm512_mul_ps(measures, counts);
