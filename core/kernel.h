@@ -890,6 +890,25 @@ inline double area_measure(const Box& b, bool use_length) {
     return use_length ? b.extent(0) + b.extent(1) + b.extent(2) : b.half_area();
 }
 
+// A node's SAH measure (simd::Measure: the half area, or the sum of extents
+// for a node of zero area) and the cost of a split from its A_L n_L + A_R n_R
+// in that measure: C_t + C_i * sum / A. Not `valid` when the node's own
+// measure is zero: no split can be costed then (no split is found).
+struct NodeCosts {
+    simd::Measure measure;
+    double inv_parent = 0.0;
+    bool valid = false;
+    [[gnu::always_inline]] explicit NodeCosts(const Box& node) : measure(node, !(node.half_area() > 0.0)) {
+        const float parent = measure(simd::Box4::of(node));
+        valid = parent > 0.0f;
+        // Taken first, the division runs beside the sweeps instead of after them.
+        if (valid) inv_parent = 1.0 / double(parent);
+    }
+    double cost(float sum, const BuildOptions& opt) const {
+        return double(opt.traversal_cost) + double(opt.intersection_cost) * double(sum) * inv_parent;
+    }
+};
+
 // Step 2: evaluate the bins-1 partitions on every valid axis by a suffix
 // sweep (right areas) and a prefix sweep (left areas). Ties go to the lowest
 // axis, then the lowest split index.
@@ -913,12 +932,9 @@ template <uint32_t Fixed, bool Huge>
 bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bounds, const BuildOptions& opt,
                      Split& best) {
     best = Split{};
-    const bool use_length = !(node_bounds.half_area() > 0.0);
-    const simd::Measure measure(node_bounds, use_length);
-    const float parent = measure(simd::Box4::of(node_bounds));
-    if (!(parent > 0.0f)) return false;
-    // Taken here, the division runs beside the sweeps instead of after them.
-    const double inv_parent = 1.0 / double(parent);
+    const NodeCosts costs(node_bounds);
+    if (!costs.valid) return false;
+    const simd::Measure& measure = costs.measure;
     const uint32_t nb = Fixed ? Fixed : m.bins;
     // The three axes are swept together, one lane each (lane 3 unused).
     // Bin b's counts as one vector: with packed counts gathered from the
@@ -1002,7 +1018,7 @@ bool evaluate_sweeps(const BinSet& bins, const BinMapper& m, const Box& node_bou
     best.axis = a;
     best.index = uint32_t(idx[a]);
     best.left_count = uint32_t(left[a]);
-    best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm_cvtss_f32(low)) * inv_parent;
+    best.cost = costs.cost(_mm_cvtss_f32(low), opt);
     return false;
 }
 // The sweeps with the signed count conversion, again with the unsigned one
@@ -1129,11 +1145,9 @@ inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, c
     }
 
     Split best;
-    const bool use_length = !(node_bounds.half_area() > 0.0);
-    const simd::Measure measure(node_bounds, use_length);
-    const float parent = measure(simd::Box4::of(node_bounds));
-    if (!(parent > 0.0f)) return best;
-    const double inv_parent = 1.0 / double(parent);
+    const NodeCosts costs(node_bounds);
+    if (!costs.valid) return best;
+    const simd::Measure& measure = costs.measure;
 
     // Inclusive prefix (bins 0..b) and suffix (bins b..3) within each axis's
     // four lanes, in two steps each.
@@ -1180,7 +1194,7 @@ inline Split bin_evaluate_4(const PrimRef* refs, uint32_t begin, uint32_t end, c
     best.axis = int(lane / 4);
     best.index = lane % 4;
     best.left_count = uint32_t(lefts[lane]);
-    best.cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm512_cvtss_f32(low)) * inv_parent;
+    best.cost = costs.cost(_mm512_cvtss_f32(low), opt);
     return best;
 }
 #else
@@ -2156,11 +2170,9 @@ inline constexpr uint32_t kExactMaxPrims = 4;
 // zero, so that no split is cheaper than another (as evaluate() finds none).
 inline bool exact_split_in_memory(const PrimRef* r, uint32_t n, const Box& node_bounds, const BuildOptions& opt,
                                   uint32_t& left, double& cost) {
-    const bool use_length = !(node_bounds.half_area() > 0.0);
-    const simd::Measure measure(node_bounds, use_length);
-    const float parent = measure(simd::Box4::of(node_bounds));
-    if (!(parent > 0.0f)) return false;
-    const double inv_parent = 1.0 / double(parent);
+    const NodeCosts costs(node_bounds);
+    if (!costs.valid) return false;
+    const simd::Measure& measure = costs.measure;
     const uint32_t full = (1u << n) - 1;
     // sub[mask]: the box of the records in mask; sub[0] is empty.
     simd::MinBox sub[1u << kExactMaxPrims];
@@ -2186,7 +2198,7 @@ inline bool exact_split_in_memory(const PrimRef* r, uint32_t n, const Box& node_
         }
     }
     left = best_mask;
-    cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(best) * inv_parent;
+    cost = costs.cost(best, opt);
     return true;
 }
 
@@ -2203,11 +2215,9 @@ inline bool exact_split_in_registers(const PrimRef* r, uint32_t n, const Box& no
                                      uint32_t& left, double& cost) {
     assert(n >= 2 && n <= kExactMaxPrims);
     static_assert(kExactMaxPrims <= 4);
-    const bool use_length = !(node_bounds.half_area() > 0.0);
-    const simd::Measure measure(node_bounds, use_length);
-    const float parent = measure(simd::Box4::of(node_bounds));
-    if (!(parent > 0.0f)) return false;
-    const double inv_parent = 1.0 / double(parent);
+    const NodeCosts costs(node_bounds);
+    if (!costs.valid) return false;
+    const simd::Measure& measure = costs.measure;
     constexpr __mmask16 has[4] = {0xAAAA, 0xCCCC, 0xF0F0, 0xFF00};  // lanes whose mask holds record j
     LaneBoxes sub;
     for (uint32_t j = 0; j < n; ++j) sub.add(r[j], has[j]);
@@ -2222,7 +2232,7 @@ inline bool exact_split_in_registers(const PrimRef* r, uint32_t n, const Box& no
     const __mmask16 candidates = __mmask16(0xAAAA & ((1u << full) - 1));  // odd masks below full
     const __m512 low = min_of(sum, candidates);
     left = uint32_t(std::countr_zero(unsigned(_mm512_mask_cmpeq_ps_mask(candidates, sum, low))));
-    cost = double(opt.traversal_cost) + double(opt.intersection_cost) * double(_mm512_cvtss_f32(low)) * inv_parent;
+    cost = costs.cost(_mm512_cvtss_f32(low), opt);
     return true;
 }
 #endif
