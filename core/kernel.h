@@ -537,12 +537,27 @@ struct BinArrays {
 #endif
         }
     }
+    // The same for the axes `axes` only (the others keep what they hold).
+    using AxisSet = std::array<bool, 3>;
+    static constexpr AxisSet kAllAxes{true, true, true};
+    void clear(uint32_t bins, const AxisSet& axes) {
+        stride = (bins + 3) & ~3u;
+        const simd::MinBox none = empty();
+        simd::MinBox* const b = base;
+        for (uint32_t i = 0; i < 3 * stride; i += 4) {
+            if (!axes[i / stride]) continue;
+            b[i] = b[i + 1] = b[i + 2] = b[i + 3] = none;
+#if !CANOPY_PACKED_COUNTS
+            _mm_storeu_si128(reinterpret_cast<__m128i*>(counts + i), _mm_setzero_si128());
+#endif
+        }
+    }
     // Exact merge (min/max and integer sums): order-independent. Both sets
-    // cleared for the same bins.
-    void merge(const BinArrays& o, uint32_t bins) {
+    // cleared for the same bins (on `axes`, which alone are merged).
+    void merge(const BinArrays& o, uint32_t bins, const AxisSet& axes = kAllAxes) {
         assert(o.stride == stride && bins <= stride);
         for (int a = 0; a < 3; ++a)
-            for (uint32_t b = 0; b < bins; ++b) {
+            for (uint32_t b = 0; b < bins && axes[a]; ++b) {
 #if CANOPY_PACKED_COUNTS
                 const __m256 x = o.at(a, b).v, y = at(a, b).v;
                 const __m256 sum = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(x), _mm256_castps_si256(y)));
@@ -591,14 +606,15 @@ struct BinSet : BinArrays {
     BinSet& operator=(const BinSet&) = delete;
     // The second set, cleared, right after the first set's bins and with
     // their stride (the first set cleared for at least `bins` bins).
-    BinArrays& second(uint32_t bins) {
+    // With `axes`, only those axes' bins are cleared.
+    BinArrays& second(uint32_t bins, const AxisSet& axes = kAllAxes) {
         assert(bins <= stride && stride <= capacity);
         (void)bins;
         odd.base = base + 3 * size_t(stride);
 #if !CANOPY_PACKED_COUNTS
         odd.counts = counts + 3 * size_t(stride);
 #endif
-        odd.clear(stride);
+        odd.clear(stride, axes);
         return odd;
     }
     // Bins per axis it has room for (a multiple of 4).
@@ -647,6 +663,11 @@ private:
 // runs, alternated): 0.80x to 0.93x as long; the sequential build of the cow
 // runs 4.3% fewer instructions (cachegrind).
 inline constexpr uint32_t kTwoBinSetsMin = 256;
+// The same for nodes flat on one or two axes (alternate_updates()): their
+// records cost less to bin, so the second set's clearing and merging pays
+// later (bench/bench_binning, the "AMD EPYC" host, 2026-12-06: at 256
+// records two sets took random triangles 1.4 to 1.7 times as long).
+inline constexpr uint32_t kTwoBinSetsFlatMin = 1024;
 
 namespace detail {
 
@@ -740,6 +761,41 @@ inline void merged_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, c
     if (i < n) update(s0, r[i], k[i]);
 }
 
+// The bin updates of a block of records on the na < 3 valid axes `axes`
+// (bin()'s two-set path for a node flat on the others): record i goes to
+// set s0 for even i and s1 for odd i. With one set, each update of a bin
+// waited for the previous one's store, and neighbours in spatial order
+// share bins: binning the 1M sphere's records in their own order on two
+// axes took 3.3 ns a record, on one axis 2.9, where all three axes (two
+// sets) took 1.5 (bench/bench_binning, the "AMD EPYC" host, 2026-12-06).
+template <int NA>
+[[gnu::noinline]] void alternate_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, const int32_t (*k)[4],
+                              uint32_t n, const int (&axes)[3]) {
+#if CANOPY_PACKED_COUNTS
+    simd::MinBox* const b0[2] = {set0.axes().a[axes[0]], set1.axes().a[axes[0]]};
+    simd::MinBox* const b1[2] = {set0.axes().a[axes[NA - 1]], set1.axes().a[axes[NA - 1]]};
+    const int a0 = axes[0], a1 = axes[NA - 1];
+    const __m256i inc = BinArrays::one();
+    const auto one = [&](int s, uint32_t i) {
+        const __m256 box = BinArrays::record(r[i]);
+        BinArrays::add(b0[s][k[i][a0]], box, inc);
+        if constexpr (NA == 2) BinArrays::add(b1[s][k[i][a1]], box, inc);
+    };
+#else
+    BinArrays* const sets[2] = {&set0, &set1};
+    const auto one = [&](int s, uint32_t i) {
+        const auto box = BinArrays::record(r[i]);
+        for (int j = 0; j < NA; ++j) sets[s]->add(axes[j], k[i][axes[j]], box);
+    };
+#endif
+    uint32_t i = 0;
+    for (; i + 1 < n; i += 2) {
+        one(0, i);
+        one(1, i + 1);
+    }
+    if (i < n) one(0, i);
+}
+
 // Writes the bin keys (see bin()) of a block of n records whose indices are
 // in k to out[0, n).
 inline void store_keys(const int32_t (*k)[4], uint32_t n, uint32_t* out) {
@@ -820,7 +876,12 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         block_indices<Pre>(r, n, m, k);
         if (keys) store_keys(k, n, keys + b0);
         if constexpr (Two) {
-            merged_updates(out, out.odd, r, k, n);
+            if (na == 3)
+                merged_updates(out, out.odd, r, k, n);
+            else if (na == 2)
+                alternate_updates<2>(out, out.odd, r, k, n, axes);
+            else
+                alternate_updates<1>(out, out.odd, r, k, n, axes);
         } else if (na == 3) {
             // The common case, unrolled: the three axes' updates are
             // independent chains.
@@ -836,7 +897,7 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
 }
 
 inline bool two_bin_sets(const BinMapper& m, uint32_t begin, uint32_t end) {
-    return m.valid_count() == 3 && end - begin >= kTwoBinSetsMin;
+    return end - begin >= kTwoBinSetsMin && (end - begin >= kTwoBinSetsFlatMin || m.valid_count() == 3);
 }
 
 // Out of line, so that bin() stays small enough to inline into run_node()
@@ -844,9 +905,10 @@ inline bool two_bin_sets(const BinMapper& m, uint32_t begin, uint32_t end) {
 template <bool Pre>
 [[gnu::noinline]] void bin_two_sets(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m,
                                     BinSet& out, uint32_t* keys) {
-    out.second(m.bins);
+    // A node flat on some axis bins and merges only the others.
+    out.second(m.bins, m.valid);
     bin_blocks<true, Pre>(refs, begin, end, m, out, keys);
-    out.merge(out.odd, m.bins);
+    out.merge(out.odd, m.bins, m.valid);
 }
 
 // Nodes whose centroid extent is below 2^-64 on some axis (prescaled).
