@@ -506,6 +506,46 @@ TEST(KernelBin, CountsAndBoxesMatchTheMapping) {
     }
 }
 
+TEST(KernelBin, FlatNodesBinOnlyTheirValidAxes) {
+    // Centroids flat on one or two axes: bin() takes its two-set path for
+    // such nodes from kTwoBinSetsFlatMin records (alternate_updates()), and
+    // its one-set path below that; the valid axes' bins match the mapping,
+    // the flat axes' bins are left empty (not binned). Odd counts, and the
+    // records also sorted along the valid axes (runs of shared bins).
+    constexpr uint32_t n = canopy::kTwoBinSetsFlatMin + 77;
+    static_assert(n % 2 == 1 && canopy::kTwoBinSetsFlatMin > canopy::kTwoBinSetsMin);
+    for (const int flat_count : {1, 2})
+    for (const uint32_t size : {n, canopy::kTwoBinSetsFlatMin - 1})
+    for (const bool sorted : {false, true}) {
+        std::vector<PrimRef> refs = random_refs(size, 11 + flat_count, 100.0f, 2.0f);
+        for (PrimRef& r : refs)
+            for (int a = 3 - flat_count; a < 3; ++a) r.lo[a] = r.hi[a] = 3.0f;
+        if (sorted)
+            std::sort(refs.begin(), refs.end(), [](const PrimRef& x, const PrimRef& y) {
+                return std::pair(x.lo.x + x.hi.x, x.id) < std::pair(y.lo.x + y.hi.x, y.id);
+            });
+        const Bounds b = bounds_of(refs.data(), 0, size);
+        const BinMapper m = BinMapper::make(b.cbounds, 32);
+        ASSERT_EQ(m.valid_count(), 3 - flat_count);
+        ASSERT_EQ(canopy::detail::two_bin_sets(m, 0, size), size >= canopy::kTwoBinSetsFlatMin);
+        const auto bins = binned(refs, 0, size, m);
+        for (int a = 0; a < 3; ++a)
+            for (uint32_t k = 0; k < m.bins; ++k) {
+                Box expected;
+                uint32_t count = 0;
+                if (m.valid[a])
+                    for (const PrimRef& r : refs)
+                        if (bin_index(m, canopy::centroid(r)[a], a) == k) {
+                            expected.extend(r.lo);
+                            expected.extend(r.hi);
+                            ++count;
+                        }
+                EXPECT_EQ(bins->count(a, k), count) << "axis " << a << " bin " << k << " flat " << flat_count;
+                EXPECT_EQ(bin_box(*bins, a, k), expected) << "axis " << a << " bin " << k << " flat " << flat_count;
+            }
+    }
+}
+
 // ---------------------------------------------------------------- evaluate
 
 namespace {
