@@ -108,10 +108,11 @@ void check_order_free(int scene, uint32_t bins, int axes) {
 
 void BM_Bin(benchmark::State& state) {
     const int scene = int(state.range(0)), order = int(state.range(1)), axes = int(state.range(4));
-    const uint32_t bins = uint32_t(state.range(2)), range = uint32_t(state.range(3));
+    const uint32_t bins = uint32_t(state.range(2));
     const Records& r = records(scene);
     const std::vector<PrimRef>& refs = order ? r.shuffled : r.ordered;
     const BinMapper m = mapper(r, bins, axes);
+    const uint32_t range = std::min<uint32_t>(uint32_t(state.range(3)), uint32_t(refs.size()));
     const uint32_t n = uint32_t(refs.size()) / range * range;
     BinSet set(bins);
     std::vector<uint32_t> keys(refs.size());

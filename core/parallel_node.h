@@ -90,6 +90,7 @@ private:
                 plan_ = Plan::Middle;
             } else {
                 skip.axes_not_binned += 3 - (m_.valid[0] + m_.valid[1] + m_.valid[2]);
+                sample_ = samples_axis(m_, t_.size());
                 cuts_ = SizeCuts::of(t_.bounds);
                 sizes_ = cuts_.applies(t_);
             }
@@ -131,6 +132,27 @@ private:
     }
 
 public:
+    // Parallel over [0, sample_chunks()), before the bin phase: bins one
+    // chunk's share of the sample (binning_mapper() in kernel.h).
+    uint32_t sample_chunks() const { return plan_ == Plan::Sah && sample_ ? chunks_ : 0; }
+    void sample_chunk(uint32_t i) {
+        BinSet* b = take_bins();
+        const auto [lo, hi] = chunk_range(i);
+        bin_sample(ctx_.refs, lo, hi, m_, *b);
+        give_back(b);
+    }
+    // Serial, after the sample: the axis to bin on, as binning_mapper()
+    // chooses it; the bin sets are cleared again for the bin phase.
+    void choose_axis(SkipCounts& skip) {
+        if (!sample_chunks()) return;
+        for (size_t i = 1; i < bin_pool_.size(); ++i) bin_pool_[0]->merge(*bin_pool_[i], m_.bins);
+        const Split guess = evaluate(*bin_pool_[0], m_, t_.bounds, *ctx_.options);
+        for (const auto& b : bin_pool_) b->clear(m_.bins);
+        if (!guess.found()) return;
+        ++skip.sampled_axes;
+        m_ = m_.only(guess.axis);
+    }
+
     // Parallel over [0, bin_chunks()): bins one chunk.
     uint32_t bin_chunks() const { return plan_ == Plan::Sah ? chunks_ : 0; }
     void bin_chunk(uint32_t i) {
@@ -241,6 +263,7 @@ private:
     BinMapper m_;
     SizeCuts cuts_;
     bool sizes_ = false;  // the size split is offered (SizeCuts::applies)
+    bool sample_ = false;  // the axis is chosen from a sample (samples_axis())
     Split split_;
     uint32_t chunks_ = 0;
     uint32_t chunk_size_ = kChunk;
@@ -274,7 +297,13 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
     };
     phase(TraceSpan::Start, [&] { serial([&] { pn.start(skip); }); });
     if (!pn.splits()) return false;
-    phase(TraceSpan::Bin, [&] { for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); }); });
+    phase(TraceSpan::Bin, [&] {
+        if (pn.sample_chunks()) {
+            for_each(pn.sample_chunks(), [&](uint32_t i) { pn.sample_chunk(i); });
+            serial([&] { pn.choose_axis(skip); });
+        }
+        for_each(pn.bin_chunks(), [&](uint32_t i) { pn.bin_chunk(i); });
+    });
     phase(TraceSpan::Evaluate, [&] { serial([&] { pn.decide(skip); }); });
     if (!pn.splits()) return false;
     if (pn.moves() && pn.partitions_by_halves()) {

@@ -1471,6 +1471,83 @@ TEST(KernelRunNode, CoincidentCentroids) {
     EXPECT_EQ(buf.perm[9], 109u);
 }
 
+TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
+    // A node of kSampleMin records or more: its sample (every kSampleStep-th
+    // record from its first) binned on all axes and evaluated gives the
+    // axis; all its records binned on that axis alone (bin_one_axis(), with
+    // keys) and evaluated give the split; run_node() partitions by it. A
+    // range with an odd tail (not a multiple of 16 or 4) and in sorted and
+    // random order; the sample's axis must differ from the axis of the
+    // best split over all axes in at least one case, or the test shows
+    // nothing the plain binning would not.
+    const uint32_t n = canopy::kSampleMin * 3 + 37, lo = 5, hi = lo + n;
+    bool differs = false;
+    for (const uint64_t seed : {3u, 4u, 5u, 6u, 7u, 8u, 9u, 10u})
+    for (const bool sorted : {false, true}) {
+        std::vector<PrimRef> input = random_refs(hi + 3, seed, 100.0f, 30.0f);
+        if (sorted)
+            std::sort(input.begin() + lo, input.begin() + hi, [](const PrimRef& x, const PrimRef& y) {
+                return std::pair(x.lo.y + x.hi.y, x.id) < std::pair(y.lo.y + y.hi.y, y.id);
+            });
+        Buffers buf(input);
+        const canopy::KernelContext ctx = buf.ctx();
+        auto bins = std::make_unique<BinSet>();
+        SkipCounts skip;
+        const NodeTask t = task_of(input, lo, hi, 1);
+        NodeTask children[2];
+        ASSERT_TRUE(canopy::run_node(ctx, t, children, *bins, skip));
+        EXPECT_EQ(skip.sampled_axes, 1u);
+
+        const BinMapper m = BinMapper::make(t.cbounds, canopy::bins_for(n, buf.opt.bins));
+        ASSERT_TRUE(canopy::samples_axis(m, n));
+        // The sample by hand, through the plain bin().
+        std::vector<PrimRef> sample;
+        for (uint32_t i = lo; i < hi; i += canopy::kSampleStep) sample.push_back(input[i]);
+        const auto sb = binned(sample, 0, uint32_t(sample.size()), m);
+        const Split guess = canopy::evaluate(*sb, m, t.bounds, buf.opt);
+        ASSERT_TRUE(guess.found());
+        const auto all = binned(input, lo, hi, m);
+        differs = differs || canopy::evaluate(*all, m, t.bounds, buf.opt).axis != guess.axis;
+        // All records on the sample's axis.
+        const BinMapper one = m.only(guess.axis);
+        ASSERT_EQ(one.valid_count(), 1);
+        std::vector<uint32_t> keys(input.size(), 0xDEADBEEFu);
+        auto b = std::make_unique<BinSet>();
+        b->clear(one.bins);
+        canopy::bin(input.data(), lo, hi, one, *b, keys.data());
+        for (uint32_t k = 0; k < one.bins; ++k) {
+            Box expected;
+            uint32_t count = 0;
+            for (uint32_t i = lo; i < hi; ++i)
+                if (bin_index(m, canopy::centroid(input[i])[guess.axis], guess.axis) == k) {
+                    expected.extend(input[i].lo);
+                    expected.extend(input[i].hi);
+                    ++count;
+                }
+            ASSERT_EQ(b->count(guess.axis, k), count) << "bin " << k;
+            ASSERT_EQ(bin_box(*b, guess.axis, k), expected) << "bin " << k;
+        }
+        for (uint32_t i = 0; i < input.size(); ++i) {
+            const uint32_t want = i < lo || i >= hi ? 0xDEADBEEFu
+                                                     : bin_index(m, canopy::centroid(input[i]), guess.axis)
+                                                           << (8 * guess.axis);
+            ASSERT_EQ(keys[i], want) << "record " << i;
+        }
+        const Split s = canopy::evaluate(*b, one, t.bounds, buf.opt);
+        ASSERT_TRUE(s.found());
+        EXPECT_EQ(s.axis, guess.axis);
+        std::vector<PrimRef> expected = input;
+        PartitionResult p = canopy::partition_by_keys(expected.data(), lo, hi, s, keys.data());
+        canopy::bounds_from_bins(*b, one, t, s, p);
+        EXPECT_TRUE(same_records(buf.a, expected));
+        EXPECT_EQ(children[0].end, p.mid);
+        EXPECT_EQ(children[0].bounds, p.left_bounds());
+        EXPECT_EQ(children[1].bounds, p.right_bounds());
+        EXPECT_EQ(children[1].cbounds, p.right_cbounds());
+    }
+    EXPECT_TRUE(differs) << "no case where the sample chose another axis than all records would";
+}
+
 TEST(KernelRunNode, SahSplitMatchesTheSteps) {
     const std::vector<PrimRef> input = random_refs(200, 77);
     {
