@@ -1062,7 +1062,7 @@ inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapp
 inline constexpr uint32_t kSampleMin = 512;
 inline constexpr uint32_t kSampleStep = 4;
 inline bool samples_axis(const BinMapper& m, uint32_t n) {
-    return CANOPY_PACKED_COUNTS && n >= kSampleMin && !m.prescaled && m.valid_count() >= 2;
+    return n >= kSampleMin && !m.prescaled && m.valid_count() >= 2;
 }
 
 // Step 1 on the sample: bins records begin, begin + kSampleStep, ... below
