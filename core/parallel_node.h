@@ -17,6 +17,9 @@
 //    halves instead (partition_half() in kernel.h): two threads each read
 //    half of the records once, pairing misplaced records from either end
 //    of the rank order, and one pairs what the two left over.
+// A node that chooses its axis from a sample (samples_axis()) first bins
+// its chunks' shares of the sample, merged and evaluated by one thread
+// (choose_axis()), as binning_mapper() does in run_node().
 // It bins every node it is given, so it is given none of the small nodes
 // that run_node() costs exactly (kExactMaxPrims; sched::team_parallel()).
 #pragma once
