@@ -1058,7 +1058,8 @@ inline void bin(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapp
 // choose their split axis from a sample: every kSampleStep-th record (from
 // the node's first) binned on every valid axis and evaluated; then all
 // records are binned on that axis alone (bin_one_axis()) and evaluated for
-// the split. See sampled_axis().
+// the split (binning_mapper()). A sample taken by position makes a tree
+// depend a little on the order of the records, never on threads.
 inline constexpr uint32_t kSampleMin = 512;
 inline constexpr uint32_t kSampleStep = 4;
 inline bool samples_axis(const BinMapper& m, uint32_t n) {
@@ -2529,7 +2530,6 @@ inline PartitionResult partition_by_mask(PrimRef* refs, uint32_t begin, uint32_t
 }
 #endif
 
-// Everything a node task needs besides its own range.
 // The mapping a node is binned with: `m` itself, or for a node that
 // samples (samples_axis()) m.only() the axis of the cheapest split the
 // sample's bins show (`m` when they show none).
@@ -2546,6 +2546,7 @@ inline BinMapper binning_mapper(const PrimRef* refs, const NodeTask& t, const Bi
 
 class TraceLog;
 
+// Everything a node task needs besides its own range.
 struct KernelContext {
     PrimRef* refs;           // the records, partitioned in place
     uint32_t* permutation;   // leaves write their ids here
