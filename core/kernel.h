@@ -686,6 +686,15 @@ inline constexpr uint32_t kOneAxisMin = 512;
 
 namespace detail {
 
+// Records r[0], r[S], r[2S], ... as r[0], r[1], r[2]: the hot loops below
+// take their records through operator[] (a plain pointer, or this for a
+// node's sample, see bin_sample()).
+template <uint32_t S>
+struct Strided {
+    const PrimRef* p;
+    const PrimRef& operator[](uint32_t i) const { return p[size_t(i) * S]; }
+};
+
 #if CANOPY_PACKED_COUNTS
 // Adds record x to bins ki of the three axes of a set (BinArrays::axes()).
 inline void update(const BinArrays::Axes& set, const PrimRef& x, const int32_t (&ki)[4]) {
@@ -732,7 +741,8 @@ inline BinArrays& hot(BinArrays& set) { return set; }
 // cow 0.98x (the cow and dragon within their noise). The same merging
 // in the one-set path (ranges under kTwoBinSetsMin) was slower everywhere
 // (1.02x to 1.03x), and eights on top of fours gained nothing (1.00x).
-inline void merged_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, const int32_t (*k)[4], uint32_t n) {
+template <class Refs>
+inline void merged_updates(BinArrays& set0, BinArrays& set1, Refs r, const int32_t (*k)[4], uint32_t n) {
     uint32_t i = 0;
     auto&& s0 = hot(set0);
     auto&& s1 = hot(set1);
@@ -783,9 +793,9 @@ inline void merged_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, c
 // share bins: binning the 1M sphere's records in their own order on two
 // axes took 3.3 ns a record, on one axis 2.9, where all three axes (two
 // sets) took 1.5 (bench/bench_binning, the "AMD EPYC" host, 2026-12-06).
-template <int NA>
-[[gnu::noinline]] void alternate_updates(BinArrays& set0, BinArrays& set1, const PrimRef* r, const int32_t (*k)[4],
-                              uint32_t n, const int (&axes)[3]) {
+template <int NA, class Refs>
+[[gnu::noinline]] void alternate_updates(BinArrays& set0, BinArrays& set1, Refs r, const int32_t (*k)[4],
+                                         uint32_t n, const int (&axes)[3]) {
 #if CANOPY_PACKED_COUNTS
     simd::MinBox* const b0[2] = {set0.axes().a[axes[0]], set1.axes().a[axes[0]]};
     simd::MinBox* const b1[2] = {set0.axes().a[axes[NA - 1]], set1.axes().a[axes[NA - 1]]};
@@ -832,8 +842,8 @@ inline void store_keys(const int32_t (*k)[4], uint32_t n, uint32_t* out) {
 
 // The bin indices of records r[0, n) (n <= kBinBlock) on the three axes,
 // one row each in k. Pre: see BinMapper::indices4.
-template <bool Pre>
-inline void block_indices(const PrimRef* r, uint32_t n, const BinMapper& m, int32_t (*k)[4]) {
+template <bool Pre, class Refs = const PrimRef*>
+inline void block_indices(Refs r, uint32_t n, const BinMapper& m, int32_t (*k)[4]) {
     uint32_t i0 = 0;
 #if defined(__AVX__)
     // Two records at a time in 256-bit vectors, lane for lane the same
@@ -1070,7 +1080,6 @@ inline bool samples_axis(const BinMapper& m, uint32_t n) {
 // end into `out` (accumulating). A team's chunks start at multiples of
 // kSampleStep from the node's first record, so their samples are the node's.
 inline void bin_sample(const PrimRef* refs, uint32_t begin, uint32_t end, const BinMapper& m, BinSet& out) {
-    alignas(32) PrimRef buf[kBinBlock];
     constexpr uint32_t span = kSampleStep * kBinBlock;
     BinArrays& odd = out.second(m.bins, m.valid);
     int axes[3] = {0, 0, 0}, na = 0;
@@ -1078,13 +1087,13 @@ inline void bin_sample(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         if (m.valid[a]) axes[na++] = a;
     for (uint32_t b0 = begin; b0 < end; b0 += span) {
         const uint32_t e = static_cast<uint32_t>(std::min<uint64_t>(end, uint64_t(b0) + span));
-        uint32_t q = 0;
-        for (uint32_t i = b0; i < e; i += kSampleStep) buf[q++] = refs[i];
-        detail::block_indices<false>(buf, q, m, out.index);
+        const uint32_t q = (e - b0 + kSampleStep - 1) / kSampleStep;
+        const detail::Strided<kSampleStep> r{refs + b0};
+        detail::block_indices<false>(r, q, m, out.index);
         if (na == 3)
-            detail::merged_updates(out, odd, buf, out.index, q);
+            detail::merged_updates(out, odd, r, out.index, q);
         else
-            detail::alternate_updates<2>(out, odd, buf, out.index, q, axes);
+            detail::alternate_updates<2>(out, odd, r, out.index, q, axes);
     }
     out.merge(odd, m.bins, m.valid);
 }
