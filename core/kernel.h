@@ -503,6 +503,13 @@ struct BinArrays {
         b.v = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(_mm256_min_ps(rec, b.v)), inc));
     }
     static __m256i one() { return _mm256_setr_epi32(0, 0, 0, 1, 0, 0, 0, 0); }
+    // Merges bin `from` into bin `into`: the boxes' minimum, lane 3 the
+    // counts' sum.
+    static void merge_bin(simd::MinBox& into, const simd::MinBox& from) {
+        const __m256 x = from.v, y = into.v;
+        const __m256 sum = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(x), _mm256_castps_si256(y)));
+        into.v = _mm256_blend_ps(_mm256_min_ps(y, x), sum, 0x08);
+    }
     // Adds a record (record()) to bin k of an axis.
     void add(int axis, int32_t k, __m256 rec) { add(at(axis, uint32_t(k)), rec, one()); }
     uint32_t count(int axis, uint32_t b) const {
@@ -572,9 +579,7 @@ struct BinArrays {
         for (int a = 0; a < 3; ++a)
             for (uint32_t b = 0; b < bins && axes[a]; ++b) {
 #if CANOPY_PACKED_COUNTS
-                const __m256 x = o.at(a, b).v, y = at(a, b).v;
-                const __m256 sum = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(x), _mm256_castps_si256(y)));
-                at(a, b).v = _mm256_blend_ps(_mm256_min_ps(y, x), sum, 0x08);  // lane 3: the counts' sum
+                merge_bin(at(a, b), o.at(a, b));
 #else
                 at(a, b).grow(o.at(a, b));
                 counts[size_t(a) * stride + b] += o.counts[size_t(a) * o.stride + b];
@@ -871,6 +876,14 @@ inline void block_indices(Refs r, uint32_t n, const BinMapper& m, int32_t (*k)[4
                         m.template indices4<Pre>(simd::centroid(simd::lo(r[i]), simd::hi(r[i]))));
 }
 
+// Asks for the records of the block two blocks ahead of the one at r
+// (record b0 of a walk ending at `end`) to be cached, when whole.
+inline void prefetch_block_ahead(const PrimRef* r, uint32_t b0, uint32_t end) {
+    if (b0 + 3 * kBinBlock > end) return;
+    const char* p = reinterpret_cast<const char*>(r + 2 * kBinBlock);
+    for (uint32_t q = 0; q < kBinBlock * sizeof(PrimRef); q += 64) _mm_prefetch(p + q, _MM_HINT_T0);
+}
+
 // bin() over blocks of records; Two: every other record into out.odd;
 // Pre: the mapping's prescale is applied (see BinMapper::indices4); keys:
 // see bin().
@@ -892,12 +905,7 @@ inline void bin_blocks(const PrimRef* refs, uint32_t begin, uint32_t end, const 
         // against two; prefetching in partition_with() too, 1.01x-1.02x.
         // (On the AMD EPYC host of 2026-12-03 a prefetch in the binning
         // measured 1.01x; its distance was not recorded.)
-        if constexpr (Two) {
-            if (b0 + 3 * kBinBlock <= end) {
-                const char* p = reinterpret_cast<const char*>(r + 2 * kBinBlock);
-                for (uint32_t q = 0; q < kBinBlock * sizeof(PrimRef); q += 64) _mm_prefetch(p + q, _MM_HINT_T0);
-            }
-        }
+        if constexpr (Two) prefetch_block_ahead(r, b0, end);
         block_indices<Pre>(r, n, m, k);
         if (keys) store_keys(k, n, keys + b0);
         if constexpr (Two) {
@@ -964,10 +972,7 @@ template <bool Pre>
     for (uint32_t b0 = begin; b0 < end; b0 += kBinBlock) {
         const uint32_t n = std::min(kBinBlock, end - b0);
         const PrimRef* r = refs + b0;
-        if (b0 + 3 * kBinBlock <= end) {
-            const char* p = reinterpret_cast<const char*>(r + 2 * kBinBlock);
-            for (uint32_t q = 0; q < kBinBlock * sizeof(PrimRef); q += 64) _mm_prefetch(p + q, _MM_HINT_T0);
-        }
+        prefetch_block_ahead(r, b0, end);
         uint32_t i = 0;
 #if defined(__AVX512F__)
         // Sixteen records at a time: their axis-a corners gathered from
@@ -1027,15 +1032,10 @@ template <bool Pre>
         for (; i < n; ++i) BinArrays::add(s0[k[i][a]], BinArrays::record(r[i]), one);
 #endif
     }
-    const auto fold = [](simd::MinBox& into, const simd::MinBox& from) {
-        const __m256 x = from.v, y = into.v;
-        const __m256 sum = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(x), _mm256_castps_si256(y)));
-        into.v = _mm256_blend_ps(_mm256_min_ps(y, x), sum, 0x08);
-    };
     for (uint32_t b = 0; b < m.bins; ++b) {
-        fold(s0[b], s1[b]);
-        fold(s0[b], s2[b]);
-        fold(s0[b], s3[b]);
+        BinArrays::merge_bin(s0[b], s1[b]);
+        BinArrays::merge_bin(s0[b], s2[b]);
+        BinArrays::merge_bin(s0[b], s3[b]);
     }
 }
 #endif
@@ -2542,15 +2542,22 @@ inline PartitionResult partition_by_mask(PrimRef* refs, uint32_t begin, uint32_t
 // The mapping a node is binned with: `m` itself, or for a node that
 // samples (samples_axis()) m.only() the axis of the cheapest split the
 // sample's bins show (`m` when they show none).
+// From a node's sample binned into `sample`: m.only() the axis of its
+// cheapest split, or `m` when it shows none (run_node() and a team's
+// choose_axis() alike).
+inline BinMapper mapper_from_sample(const BinSet& sample, const BinMapper& m, const Box& node_bounds,
+                                    const BuildOptions& opt, SkipCounts& skip) {
+    const Split guess = evaluate(sample, m, node_bounds, opt);
+    if (!guess.found()) return m;
+    ++skip.sampled_axes;
+    return m.only(guess.axis);
+}
 inline BinMapper binning_mapper(const PrimRef* refs, const NodeTask& t, const BinMapper& m, BinSet& bins,
                                 const BuildOptions& opt, SkipCounts& skip) {
     if (!samples_axis(m, t.size())) return m;
     bins.clear(m.bins);
     bin_sample(refs, t.begin, t.end, m, bins);
-    const Split guess = evaluate(bins, m, t.bounds, opt);
-    if (!guess.found()) return m;
-    ++skip.sampled_axes;
-    return m.only(guess.axis);
+    return mapper_from_sample(bins, m, t.bounds, opt, skip);
 }
 
 class TraceLog;

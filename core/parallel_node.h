@@ -149,11 +149,9 @@ public:
     void choose_axis(SkipCounts& skip) {
         if (!sample_chunks()) return;
         for (size_t i = 1; i < bin_pool_.size(); ++i) bin_pool_[0]->merge(*bin_pool_[i], m_.bins);
-        const Split guess = evaluate(*bin_pool_[0], m_, t_.bounds, *ctx_.options);
+        const BinMapper chosen = mapper_from_sample(*bin_pool_[0], m_, t_.bounds, *ctx_.options, skip);
         for (const auto& b : bin_pool_) b->clear(m_.bins);
-        if (!guess.found()) return;
-        ++skip.sampled_axes;
-        m_ = m_.only(guess.axis);
+        m_ = chosen;
     }
 
     // Parallel over [0, bin_chunks()): bins one chunk.
