@@ -1472,18 +1472,22 @@ TEST(KernelRunNode, CoincidentCentroids) {
 }
 
 TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
-    // A node of kSampleMin records or more: its sample (every kSampleStep-th
-    // record from its first) binned on all axes and evaluated gives the
-    // axis; all its records binned on that axis alone (bin_one_axis(), with
-    // keys) and evaluated give the split; run_node() partitions by it. A
-    // range with an odd tail (not a multiple of 16 or 4) and in sorted and
-    // random order; the sample's axis must differ from the axis of the
-    // best split over all axes in at least one case, or the test shows
-    // nothing the plain binning would not.
-    const uint32_t n = canopy::kSampleMin * 3 + 37, lo = 5, hi = lo + n;
+    // A node of kSampleMin records or more: its sample (every
+    // sample_step()-th record from its first) binned on all axes and
+    // evaluated gives the axis; all its records binned on that axis alone
+    // (bin_one_axis(), with keys) and evaluated give the split; run_node()
+    // partitions by it. Ranges with an odd tail (not a multiple of 16 or 4)
+    // whose steps are 4, 8 and 32, in sorted and random order; the sample's
+    // axis must differ from the axis of the best split over all axes in at
+    // least one case, or the test shows nothing the plain binning would not.
     bool differs = false;
+    std::vector<uint32_t> steps;
+    for (const uint32_t n : {canopy::kSampleMin * 3 + 37, 9000u + 37, 33000u + 5})
     for (const uint64_t seed : {3u, 4u, 5u, 6u, 7u, 8u, 9u, 10u})
     for (const bool sorted : {false, true}) {
+        const uint32_t lo = 5, hi = lo + n;
+        const uint32_t step = canopy::sample_step(n);
+        if (seed == 3 && !sorted) steps.push_back(step);
         std::vector<PrimRef> input = random_refs(hi + 3, seed, 100.0f, 30.0f);
         if (sorted)
             std::sort(input.begin() + lo, input.begin() + hi, [](const PrimRef& x, const PrimRef& y) {
@@ -1502,7 +1506,7 @@ TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
         ASSERT_TRUE(canopy::samples_axis(m, n));
         // The sample by hand, through the plain bin().
         std::vector<PrimRef> sample;
-        for (uint32_t i = lo; i < hi; i += canopy::kSampleStep) sample.push_back(input[i]);
+        for (uint32_t i = lo; i < hi; i += step) sample.push_back(input[i]);
         const auto sb = binned(sample, 0, uint32_t(sample.size()), m);
         const Split guess = canopy::evaluate(*sb, m, t.bounds, buf.opt);
         ASSERT_TRUE(guess.found());
@@ -1546,6 +1550,30 @@ TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
         EXPECT_EQ(children[1].cbounds, p.right_cbounds());
     }
     EXPECT_TRUE(differs) << "no case where the sample chose another axis than all records would";
+    EXPECT_EQ(steps, (std::vector<uint32_t>{4, 8, 32}));
+}
+
+TEST(KernelRunNode, SampleStepKeepsTheSampleBig) {
+    // Every fourth record below 8,192; then the step doubles while the
+    // sample keeps kSampleTarget records, up to kSampleMaxStep; a step
+    // always divides the 64-record chunks of a team's node.
+    EXPECT_EQ(canopy::sample_step(canopy::kSampleMin), 4u);
+    EXPECT_EQ(canopy::sample_step(8191), 4u);
+    EXPECT_EQ(canopy::sample_step(8192), 8u);
+    EXPECT_EQ(canopy::sample_step(16383), 8u);
+    EXPECT_EQ(canopy::sample_step(16384), 16u);
+    EXPECT_EQ(canopy::sample_step(32768), 32u);
+    EXPECT_EQ(canopy::sample_step(~0u), 32u);
+    for (uint32_t n = canopy::kSampleMin; n < (1u << 22); n += n / 7 + 1) {
+        const uint32_t s = canopy::sample_step(n);
+        EXPECT_EQ(64 % s, 0u) << n;
+        if (s > canopy::kSampleStep) {
+            EXPECT_GE(n / s, canopy::kSampleTarget) << n;
+        }
+        if (s < canopy::kSampleMaxStep) {
+            EXPECT_LT(n / (2 * s), canopy::kSampleTarget) << n;
+        }
+    }
 }
 
 TEST(KernelRunNode, SahSplitMatchesTheSteps) {
