@@ -141,7 +141,7 @@ public:
     void sample_chunk(uint32_t i) {
         BinSet* b = take_bins();
         const auto [lo, hi] = chunk_range(i);
-        bin_sample(ctx_.refs, lo, hi, sample_step(t_.size()), m_, *b);
+        bin_sample(ctx_.refs, lo, hi, sample_step(t_), m_, *b);
         give_back(b);
     }
     // Serial, after the sample: the axis to bin on, as binning_mapper()

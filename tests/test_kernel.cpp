@@ -1477,18 +1477,19 @@ TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
     // evaluated gives the axis; all its records binned on that axis alone
     // (bin_one_axis(), with keys) and evaluated give the split; run_node()
     // partitions by it. Ranges with an odd tail (not a multiple of 16 or 4)
-    // whose steps are 4, 8 and 32, in sorted and random order; the sample's
-    // axis must differ from the axis of the best split over all axes in at
-    // least one case, or the test shows nothing the plain binning would not.
+    // whose steps are 4, 8 and 32, and a big one whose large primitives
+    // keep it at 4 (sample_step(t)), in sorted and random order; the
+    // sample's axis must differ from the axis of the best split over all
+    // axes in at least one case, or the test shows nothing the plain
+    // binning would not.
     bool differs = false;
     std::vector<uint32_t> steps;
-    for (const uint32_t n : {canopy::kSampleMin * 3 + 37, 9000u + 37, 33000u + 5})
+    for (const auto& [n, size] : {std::pair(canopy::kSampleMin * 3 + 37, 30.0f), std::pair(9000u + 37, 2.0f),
+                                 std::pair(33000u + 5, 2.0f), std::pair(33000u + 5, 30.0f)})
     for (const uint64_t seed : {3u, 4u, 5u, 6u, 7u, 8u, 9u, 10u})
     for (const bool sorted : {false, true}) {
         const uint32_t lo = 5, hi = lo + n;
-        const uint32_t step = canopy::sample_step(n);
-        if (seed == 3 && !sorted) steps.push_back(step);
-        std::vector<PrimRef> input = random_refs(hi + 3, seed, 100.0f, 30.0f);
+        std::vector<PrimRef> input = random_refs(hi + 3, seed, 100.0f, size);
         if (sorted)
             std::sort(input.begin() + lo, input.begin() + hi, [](const PrimRef& x, const PrimRef& y) {
                 return std::pair(x.lo.y + x.hi.y, x.id) < std::pair(y.lo.y + y.hi.y, y.id);
@@ -1497,7 +1498,10 @@ TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
         const canopy::KernelContext ctx = buf.ctx();
         auto bins = std::make_unique<BinSet>();
         SkipCounts skip;
-        const NodeTask t = task_of(input, lo, hi, 1);
+        NodeTask t = task_of(input, lo, hi, 1);
+        for (uint32_t i = lo; i < hi; ++i) t.max_area = std::max(t.max_area, input[i].area);
+        const uint32_t step = canopy::sample_step(t);
+        if (seed == 3 && !sorted) steps.push_back(step);
         NodeTask children[2];
         ASSERT_TRUE(canopy::run_node(ctx, t, children, *bins, skip));
         EXPECT_EQ(skip.sampled_axes, 1u);
@@ -1550,13 +1554,27 @@ TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
         EXPECT_EQ(children[1].cbounds, p.right_cbounds());
     }
     EXPECT_TRUE(differs) << "no case where the sample chose another axis than all records would";
-    EXPECT_EQ(steps, (std::vector<uint32_t>{4, 8, 32}));
+    EXPECT_EQ(steps, (std::vector<uint32_t>{4, 8, 32, 4}));
 }
 
 TEST(KernelRunNode, SampleStepKeepsTheSampleBig) {
     // Every fourth record below 8,192; then the step doubles while the
     // sample keeps kSampleTarget records, up to kSampleMaxStep; a step
-    // always divides the 64-record chunks of a team's node.
+    // always divides the 64-record chunks of a team's node. A node whose
+    // largest primitive has 1/kSampleLargePrim of its half area or more
+    // samples every fourth record at any size.
+    NodeTask t;
+    t.begin = 0;
+    t.end = 100000;
+    t.bounds = canopy::Box{Vec3(0.0f), Vec3(1.0f)};  // half area 3
+    t.max_area = 3.0f / 32.0f;
+    EXPECT_EQ(canopy::sample_step(t), 4u);
+    t.max_area = std::nextafter(3.0f / 32.0f, 0.0f);
+    EXPECT_EQ(canopy::sample_step(t), 32u);
+    t.max_area = 0.0f;
+    EXPECT_EQ(canopy::sample_step(t), 32u);
+    t.end = 9000;
+    EXPECT_EQ(canopy::sample_step(t), 8u);
     EXPECT_EQ(canopy::sample_step(canopy::kSampleMin), 4u);
     EXPECT_EQ(canopy::sample_step(8191), 4u);
     EXPECT_EQ(canopy::sample_step(8192), 8u);
