@@ -1086,10 +1086,11 @@ inline bool samples_axis(const BinMapper& m, uint32_t n) {
 // 5 alternated rounds' ratios): sequential 1M sphere 0.90x, 1M stadium
 // 0.89x, 1M random 0.97x, dragon_vrip_res2 0.93x; tbb at 2 threads 1M
 // sphere 0.88x, dragon 0.94x, 1M random 0.96x. SAH within 0.01% on the
-// generated scenes and the meshes but Sibenik (26.02 -> 26.61; its exact
-// sweep's is 26.43). (Sample steps of 8 or 16 throughout gained less on
-// the big scenes and cost more SAH.) The chunks of a team's node start at
-// multiples of 64 records from its first, so a step divides them.
+// sphere, stadium and random scenes and the dragons, bunny and cow (for
+// scenes with a few large primitives, see sample_step(t) below). (Sample
+// steps of 8 or 16 throughout gained less on the big scenes and cost more
+// SAH.) The chunks of a team's node start at multiples of 64 records from
+// its first, so a step divides them.
 inline constexpr uint32_t kSampleStep = 4;
 inline constexpr uint32_t kSampleMaxStep = 32;
 inline constexpr uint32_t kSampleTarget = 1024;

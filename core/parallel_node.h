@@ -141,7 +141,9 @@ public:
     void sample_chunk(uint32_t i) {
         BinSet* b = take_bins();
         const auto [lo, hi] = chunk_range(i);
-        bin_sample(ctx_.refs, lo, hi, sample_step(t_), m_, *b);
+        const uint32_t step = sample_step(t_);
+        assert((lo - t_.begin) % step == 0);  // the chunk's sample is the node's
+        bin_sample(ctx_.refs, lo, hi, step, m_, *b);
         give_back(b);
     }
     // Serial, after the sample: the axis to bin on, as binning_mapper()
