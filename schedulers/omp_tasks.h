@@ -2,11 +2,30 @@
 //
 // The big nodes near the root run with the whole team (omp_top_phase); then
 // one thread turns the remaining node tasks into OpenMP tasks. A task that
-// splits spawns a task for its left child and continues with its right one
-// itself; below the task cutoff a subtree runs inline, depth first.
+// splits continues with its right child itself and, while fewer than
+// threads - 1 tasks wait to be started, spawns a task for its left child;
+// otherwise it runs the left child first, depth first, on its own thread.
+// Below the task cutoff a subtree runs inline, depth first.
+//
+// The limit on waiting tasks: with a task spawned at every split, all of
+// them in libgomp's one queue for the team, the node work took longer than
+// under TBB, whose threads take their own last-spawned task (whose records
+// are still in their caches) and steal only when they have none. With the
+// limit a thread goes depth first through its own subtrees, and the task
+// waiting for an idle thread is the one a busy thread spawned last.
+// Traced builds of the 1M sphere at 2 threads (medians of 7): the node
+// work after the root 46.2 ms with a task at every split, 43.3 with the
+// limit (tbb's 45.0); whole builds at 2 threads, alternated against the
+// task at every split (medians of 7 rounds' ratios, "AMD EPYC" host,
+// 2026-12-06): 1M sphere 0.960x, 1M stadium 0.978x (5 rounds), 1M random
+// 0.958x, dragon_vrip_res2 0.986x and 0.989x (9 rounds), 4M sphere 0.993x
+// (3 rounds).
+// Which thread builds a node never changes the tree (see common.h).
 #pragma once
 
 #include "omp_common.h"
+
+#include <atomic>
 
 namespace canopy {
 
@@ -19,21 +38,28 @@ struct OmpTasks {
         st.allocate_records_in_tree();  // before any context() is taken
         const KernelContext ctx = st.context(threads);
         sched::TopPhase top;
+        Spawner spawn{{0}, static_cast<int>(threads) - 1};
         sched::omp_build(st, threads, [&](sched::Workers& workers, uint32_t team) {
             sched::omp_top_phase(ctx, st.n, team, top, workers, st.root);
 #pragma omp single
             {
                 for (size_t i = 0; i < top.small.size(); ++i) {
                     const NodeTask t = top.small[i];
-#pragma omp task firstprivate(t) shared(workers)
-                    task(ctx, t, workers);
+#pragma omp task firstprivate(t) shared(workers, spawn)
+                    task(ctx, t, workers, spawn);
                 }
             }  // the barrier here waits for every task
         });
     }
 
 private:
-    static void task(const KernelContext& ctx, NodeTask t, sched::Workers& workers) {
+    // Tasks spawned by task() and not started yet, and how many may wait.
+    struct Spawner {
+        std::atomic<int> waiting;
+        int limit;
+    };
+
+    static void task(const KernelContext& ctx, NodeTask t, sched::Workers& workers, Spawner& spawn) {
         while (true) {
             sched::Worker& wk = workers[static_cast<size_t>(omp_get_thread_num())];
             if (sched::below_cutoff(t, ctx.options->tuning)) {
@@ -44,8 +70,16 @@ private:
             NodeTask children[2];
             if (!sched::run_recorded(ctx, t, children, wk)) return;
             const NodeTask left = children[0];
-#pragma omp task firstprivate(left) shared(workers)
-            task(ctx, left, workers);
+            if (spawn.waiting.load(std::memory_order_relaxed) < spawn.limit) {
+                spawn.waiting.fetch_add(1, std::memory_order_relaxed);
+#pragma omp task firstprivate(left) shared(workers, spawn)
+                {
+                    spawn.waiting.fetch_sub(1, std::memory_order_relaxed);
+                    task(ctx, left, workers, spawn);
+                }
+            } else {
+                task(ctx, left, workers, spawn);
+            }
             t = children[1];
         }
     }
