@@ -93,7 +93,7 @@ private:
                 plan_ = Plan::Middle;
             } else {
                 skip.axes_not_binned += 3 - (m_.valid[0] + m_.valid[1] + m_.valid[2]);
-                sample_ = samples_axis(m_, t_.size());
+                sample_step_ = samples_axis(m_, t_.size()) ? sample_step(t_) : 0;
                 cuts_ = SizeCuts::of(t_.bounds);
                 sizes_ = cuts_.applies(t_);
             }
@@ -137,13 +137,12 @@ private:
 public:
     // Parallel over [0, sample_chunks()), before the bin phase: bins one
     // chunk's share of the sample (binning_mapper() in kernel.h).
-    uint32_t sample_chunks() const { return plan_ == Plan::Sah && sample_ ? chunks_ : 0; }
+    uint32_t sample_chunks() const { return plan_ == Plan::Sah && sample_step_ ? chunks_ : 0; }
     void sample_chunk(uint32_t i) {
         BinSet* b = take_bins();
         const auto [lo, hi] = chunk_range(i);
-        const uint32_t step = sample_step(t_);
-        assert((lo - t_.begin) % step == 0);  // the chunk's sample is the node's
-        bin_sample(ctx_.refs, lo, hi, step, m_, *b);
+        assert((lo - t_.begin) % sample_step_ == 0);  // the chunk's sample is the node's
+        bin_sample(ctx_.refs, lo, hi, sample_step_, m_, *b);
         give_back(b);
     }
     // Serial, after the sample: the axis to bin on, as binning_mapper()
@@ -266,7 +265,7 @@ private:
     BinMapper m_;
     SizeCuts cuts_;
     bool sizes_ = false;  // the size split is offered (SizeCuts::applies)
-    bool sample_ = false;  // the axis is chosen from a sample (samples_axis())
+    uint32_t sample_step_ = 0;  // the axis is chosen from a sample of this step (samples_axis()); 0: not
     Split split_;
     uint32_t chunks_ = 0;
     uint32_t chunk_size_ = kChunk;

@@ -1499,7 +1499,7 @@ TEST(KernelRunNode, BigNodesBinTheAxisTheSampleChooses) {
         auto bins = std::make_unique<BinSet>();
         SkipCounts skip;
         NodeTask t = task_of(input, lo, hi, 1);
-        for (uint32_t i = lo; i < hi; ++i) t.max_area = std::max(t.max_area, input[i].area);
+        t.max_area = bounds_of(input.data(), lo, hi).max_area;
         const uint32_t step = canopy::sample_step(t);
         if (seed == 3 && !sorted) steps.push_back(step);
         NodeTask children[2];
