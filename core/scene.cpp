@@ -4,6 +4,7 @@
 #include "error.h"
 #include "file_read.h"
 #include "ply.h"
+#include "rng.h"
 
 #include <assimp/Importer.hpp>
 #include <assimp/config.h>
@@ -59,19 +60,8 @@ bool is_finite(const Vec3& p) {
 // Generators.
 //
 // Every generator is a pure function of (count, seed). Randomness comes from
-// std::mt19937_64, whose output sequence the standard fixes, mapped to [0, 1)
-// by hand (std::uniform_real_distribution differs between standard
-// libraries). Coordinates are computed in double and rounded once to float.
-
-class Rng {
-public:
-    explicit Rng(uint64_t seed) : engine_(seed) {}
-    // Uniform in [0, 1): the top 53 bits of one 64-bit draw.
-    double uniform() { return static_cast<double>(engine_() >> 11) * 0x1.0p-53; }
-
-private:
-    std::mt19937_64 engine_;
-};
+// Rng (core/rng.h), the same numbers on every platform. Coordinates are
+// computed in double and rounded once to float.
 
 Vec3 make_vec(double x, double y, double z) {
     return Vec3(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));

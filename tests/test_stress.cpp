@@ -8,6 +8,7 @@
 // runs on the same cases. Then: a million rays from inside a closed mesh
 // through its vertices and edge midpoints must all hit, and the build must
 // leave the floating-point control state (MXCSR) alone.
+#include "core/rng.h"
 #include "core/sah.h"
 #include "core/scene.h"
 #include "core/sweep_sah.h"
@@ -58,20 +59,16 @@ using namespace canopy;
 
 uint32_t bits(float f) { return std::bit_cast<uint32_t>(f); }
 
-class Rng {
+// Rng (core/rng.h) with the draws these tests need.
+class StressRng : public Rng {
 public:
-    explicit Rng(uint64_t seed) : engine_(seed) {}
-    double uniform() { return static_cast<double>(engine_() >> 11) * 0x1.0p-53; }
-    double range(double lo, double hi) { return lo + (hi - lo) * uniform(); }
-    uint64_t below(uint64_t n) { return engine_() % n; }
+    using Rng::Rng;
+    uint64_t below(uint64_t n) { return next() % n; }
     glm::dvec3 unit() {
         const double z = range(-1.0, 1.0), phi = range(0.0, 6.283185307179586);
         const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
         return {r * std::cos(phi), r * std::sin(phi), z};
     }
-
-private:
-    std::mt19937_64 engine_;
 };
 
 std::string num(double v) {
@@ -123,7 +120,7 @@ DBox bounds(const TriangleMesh& m) {
 // random directions; axis-parallel rays (on a flat scene they run in its
 // plane). Directions are unit vectors.
 std::vector<Ray> make_rays(const TriangleMesh& m, size_t count, uint64_t seed) {
-    Rng rng(seed);
+    StressRng rng(seed);
     const DBox b = bounds(m);
     const glm::dvec3 c = 0.5 * b.lo + 0.5 * b.hi;
     double radius = 0.5 * glm::length(b.hi - b.lo);
@@ -310,7 +307,7 @@ TriangleMesh transformed(TriangleMesh m, double scale, glm::dvec3 offset) {
 }
 
 // Random triangles of size `size` with centres in [lo, hi]^3.
-std::vector<std::array<glm::dvec3, 3>> random_triangles(Rng& rng, size_t n, double lo, double hi, double size) {
+std::vector<std::array<glm::dvec3, 3>> random_triangles(StressRng& rng, size_t n, double lo, double hi, double size) {
     std::vector<std::array<glm::dvec3, 3>> out;
     for (size_t i = 0; i < n; ++i) {
         const glm::dvec3 c(rng.range(lo, hi), rng.range(lo, hi), rng.range(lo, hi));
@@ -331,7 +328,7 @@ TEST(Stress, HundredThousandIdenticalTriangles) {
 }
 
 TEST(Stress, CentroidsOnOneLine) {
-    Rng rng(11);
+    StressRng rng(11);
     // Along x: boxes symmetric about the x axis, of various lengths, so
     // every box centre has y = z = 0; overlapping in x.
     std::vector<std::array<glm::dvec3, 3>> tris;
@@ -358,7 +355,7 @@ TEST(Stress, CentroidsOnOneLine) {
 TEST(Stress, PlanarScene) {
     // A grid in z = 0 and random triangles in the same plane, overlapping it.
     TriangleMesh m = generate("plane", 10000);
-    Rng rng(12);
+    StressRng rng(12);
     std::vector<std::array<glm::dvec3, 3>> tris;
     for (int i = 0; i < 4000; ++i) {
         const glm::dvec3 c(rng.range(-1.5, 1.5), rng.range(-1.5, 1.5), 0.0);
@@ -371,7 +368,7 @@ TEST(Stress, PlanarScene) {
 }
 
 TEST(Stress, ZeroAreaTriangles) {
-    Rng rng(13);
+    StressRng rng(13);
     std::vector<std::array<glm::dvec3, 3>> tris;
     for (int i = 0; i < 4000; ++i) {  // points
         const glm::dvec3 p(rng.range(-1, 1), rng.range(-1, 1), rng.range(-1, 1));
@@ -400,7 +397,7 @@ TEST(Stress, DuplicatedMesh) {
 
 TEST(Stress, TranslatedFarFromTheOrigin) {
     const TriangleMesh sphere = generate("sphere", 3000);
-    Rng rng(14);
+    StressRng rng(14);
     const TriangleMesh box = from_triangles(random_triangles(rng, 3000, -1.0, 1.0, 0.05));
     for (const double offset : {1e6, 1e12, 1e18}) {
         const glm::dvec3 off(offset, -0.5 * offset, 0.25 * offset);
@@ -415,7 +412,7 @@ TEST(Stress, TranslatedFarFromTheOrigin) {
 
 TEST(Stress, ScaledTinyAndHuge) {
     const TriangleMesh sphere = generate("sphere", 5000);
-    Rng rng(15);
+    StressRng rng(15);
     const TriangleMesh random = from_triangles(random_triangles(rng, 5000, -1.0, 1.0, 0.05));
     for (const double s : {1e-30, 1e30}) {
         const std::string by = " scaled by " + num(s);
@@ -427,7 +424,7 @@ TEST(Stress, ScaledTinyAndHuge) {
 }
 
 TEST(Stress, MixedScales) {
-    Rng rng(16);
+    StressRng rng(16);
     auto tris = random_triangles(rng, 5000, -1.0, 1.0, 1e-6);   // tiny, in the unit cube
     const auto big = random_triangles(rng, 5000, -1e7, 1e7, 1e6);  // huge, around it
     tris.insert(tris.end(), big.begin(), big.end());
@@ -435,7 +432,7 @@ TEST(Stress, MixedScales) {
 }
 
 TEST(Stress, Slivers) {
-    Rng rng(17);
+    StressRng rng(17);
     std::vector<std::array<glm::dvec3, 3>> tris;
     for (int i = 0; i < 8000; ++i) {
         const glm::dvec3 p(rng.range(-10, 10), rng.range(-10, 10), rng.range(-10, 10));
@@ -463,7 +460,7 @@ TEST(Stress, Slivers) {
 // culled although its triangle is hit. The trees themselves are valid and
 // identical across schedulers; only the comparison with brute force fails.
 TEST(Stress, DenormalCoordinates) {
-    Rng rng(18);
+    StressRng rng(18);
     // Centres within 1e-40 of the origin, sizes about 1e-41: every
     // coordinate subnormal (below 1.18e-38).
     // And a sphere of radius 1e-40 around them.
@@ -531,7 +528,7 @@ TEST(Leak, MillionRaysFromInsideAClosedSphere) {
     std::vector<Vec3> targets(m.vertices.begin(), m.vertices.end());
     for (const auto& [a, b] : edges) targets.push_back(0.5f * m.vertices[a] + 0.5f * m.vertices[b]);
 
-    Rng rng(19);
+    StressRng rng(19);
     std::vector<Vec3> origins{Vec3(0.0f)};
     while (origins.size() * targets.size() < 1000000) origins.push_back(to_float(rng.range(0.0, 0.6) * rng.unit()));
 
@@ -608,7 +605,7 @@ std::vector<unsigned> worker_csrs(uint32_t threads) {
 }
 
 TEST(FloatingPoint, BuildLeavesMxcsrUnchanged) {
-    Rng rng(20);
+    StressRng rng(20);
     // Denormal and ordinary triangles: workers see both.
     TriangleMesh m = append(generate("sphere", 20000),
                             from_triangles(random_triangles(rng, 6000, -1e-40, 1e-40, 1e-41)));
@@ -646,7 +643,7 @@ TEST(FloatingPoint, BuildLeavesMxcsrUnchanged) {
 // boxes exactly (validate() compares floats exactly), and the leaf boxes
 // must be the primitives' exact bounds (not flushed to zero).
 TEST(FloatingPoint, DenormalsStayInsideTheirLeafBoxes) {
-    Rng rng(21);
+    StressRng rng(21);
     const TriangleMesh m = from_triangles(random_triangles(rng, 5000, -1e-40, 1e-40, 1e-41));
     const TriangleView view = m.view();
     std::vector<std::string> failures;
@@ -790,7 +787,7 @@ Bvh naive_sweep(const TriangleMesh& m, const BuildOptions& opt) {
 }
 
 TEST(SweepSah, MatchesANaiveGreedyBuilder) {
-    Rng rng(22);
+    StressRng rng(22);
     std::vector<std::pair<std::string, TriangleMesh>> scenes;
     scenes.emplace_back("random", generate("random", 400, 9));
     scenes.emplace_back("sphere", generate("sphere", 300));

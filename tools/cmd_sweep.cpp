@@ -7,6 +7,7 @@
 // build time (log scale) against error, one curve per scene.
 #include "cli.h"
 #include "core/bvh.h"
+#include "core/rng.h"
 #include "core/sah.h"
 #include "core/scene.h"
 #include "core/sweep_sah.h"
@@ -66,17 +67,6 @@ struct SceneResult {
     std::string name;
     size_t triangles = 0;
     std::vector<Row> rows;  // the bin counts, then the exact tree
-};
-
-// Uniform doubles from a fixed engine, mapped by hand (the standard does not
-// fix uniform_real_distribution), so the ray set is the same everywhere.
-class Rng {
-public:
-    explicit Rng(uint64_t seed) : engine_(seed) {}
-    double uniform() { return static_cast<double>(engine_() >> 11) * 0x1.0p-53; }
-
-private:
-    std::mt19937_64 engine_;
 };
 
 // The fixed ray set: `count` rays, about half primary rays from a camera
