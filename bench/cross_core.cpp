@@ -19,7 +19,8 @@
 // the two vCPUs between a placement where they share a cache and one where
 // they do not, for minutes at a time. canopy's 2-thread builds follow it
 // (README, "Where the performance targets stand").
-#include <algorithm>
+#include "tools/cli.h"  // canopy::cli::median
+
 #include <atomic>
 #include <chrono>
 #include <cstdio>
@@ -33,11 +34,6 @@ using Clock = std::chrono::steady_clock;
 
 double micros(Clock::time_point a, Clock::time_point b) {
     return std::chrono::duration<double, std::micro>(b - a).count();
-}
-
-double median(std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v[v.size() / 2];
 }
 
 // Reads and writes one float in every 64-byte line; the sum keeps the loop
@@ -94,7 +90,7 @@ int main(int argc, char** argv) {
             while (turn.load(std::memory_order_acquire) != 0) {
             }
         }
-        const double l = median(local), r = median(remote);
+        const double l = canopy::cli::median(local), r = canopy::cli::median(remote);
         std::printf("batch %ld: own lines %.0f us, lines the other core wrote %.0f us (%.2fx)\n", b, l, r, r / l);
         std::fflush(stdout);
         if (b + 1 < batches) std::this_thread::sleep_for(std::chrono::milliseconds(pause_ms));
