@@ -619,6 +619,12 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
         constexpr size_t kPageNodes = 4096 / sizeof(Node);
         const size_t start = r == 0 ? 0 : moves[first[r]].block->root.begin;
         std::uintptr_t storage_done = (reinterpret_cast<std::uintptr_t>(refs + start) + storage_unit) & ~storage_unit;
+        // The first run's records up to that boundary share their huge page
+        // with the storage's front, given back before (so the page is split
+        // already): given back too as soon as they are consumed, rather than
+        // with the storage at the end, since the placement's peak comes
+        // while it writes its first new huge pages.
+        const std::uintptr_t head_end = r == 0 ? storage_done : 0;
         size_t area_done = (start + kPageNodes - 1) / kPageNodes * kPageNodes, released = start;
         // The run's slots, and its consumed huge pages of the storage not
         // yet handed on or given back (at most one kept).
@@ -651,7 +657,17 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
             // Every record before the next block's is consumed.
             const size_t consumed = k + 1 < moves.size() ? moves[k + 1].block->root.begin
                                                          : size_t(b.root.begin) + b.over_records;
-            if (consumed >= released + step || k + 1 == first[r + 1]) {
+            // Every `step` records, and as soon as a whole 2 MiB of the area
+            // or of the storage is consumed, to be handed on to the next new
+            // huge page before the run touches it fresh.
+            const bool whole_unit = recycle && (consumed / kHugeNodes > released / kHugeNodes ||
+                                                (reinterpret_cast<std::uintptr_t>(refs + consumed) & ~storage_unit) >=
+                                                    storage_done + kHuge);
+            if (consumed >= released + step || whole_unit || k + 1 == first[r + 1]) {
+                const std::uintptr_t head = reinterpret_cast<std::uintptr_t>(refs) & ~std::uintptr_t(4095);
+                if (head_end > head && released < size_t(head_end - reinterpret_cast<std::uintptr_t>(refs)) / sizeof(PrimRef) &&
+                    consumed >= size_t(head_end - reinterpret_cast<std::uintptr_t>(refs)) / sizeof(PrimRef))
+                    nodes.discard(reinterpret_cast<const void*>(head), reinterpret_cast<const void*>(head_end));
                 std::uintptr_t storage_to = reinterpret_cast<std::uintptr_t>(refs + consumed) & ~storage_unit;
                 if (recycle && storage_to > storage_done) {
                     // Keeps the last whole huge page for the next one the run writes.

@@ -83,6 +83,10 @@ bool growable_mappings_available() noexcept { return true; }
 namespace {
 constexpr std::size_t kPage = 4096, kHugePage = std::size_t(2) << 20;
 std::size_t round_up(std::size_t bytes, std::size_t unit) { return (bytes + unit - 1) / unit * unit; }
+// What a mapping's accessible size is a whole number of (map_pages()).
+std::size_t mapping_unit(bool huge, std::size_t bytes) {
+    return huge && bytes >= kWholeHugeMin ? kHugePage : kPage;
+}
 
 // Address space for `reserved` bytes from a 2 MiB boundary, inaccessible,
 // advised for huge pages as a whole (advice on part of it would split it
@@ -104,7 +108,8 @@ void* reserve_aligned(std::size_t reserved, bool huge = true) {
 
 PageMapping map_pages(std::size_t bytes, std::size_t reserve, bool counted, bool huge) {
     PageMapping m;
-    m.bytes = round_up(std::max<std::size_t>(bytes, 1), kPage);
+    m.huge = huge;
+    m.bytes = round_up(std::max<std::size_t>(bytes, 1), mapping_unit(huge, bytes));
     m.reserved = round_up(std::max(2 * m.bytes, reserve), kHugePage);
     m.p = reserve_aligned(m.reserved, huge);
     if (counted) report_mapped(std::ptrdiff_t(m.bytes));
@@ -118,7 +123,7 @@ PageMapping map_pages(std::size_t bytes, std::size_t reserve, bool counted, bool
 }
 
 void grow_pages(PageMapping& m, std::size_t bytes) {
-    bytes = round_up(bytes, kPage);
+    bytes = round_up(bytes, mapping_unit(m.huge, bytes));
     if (bytes <= m.bytes) return;
     // Counted before it is made: the observer's high-water mark covers it.
     report_mapped(std::ptrdiff_t(bytes - m.bytes));
@@ -134,7 +139,7 @@ void grow_pages(PageMapping& m, std::size_t bytes) {
     const std::size_t reserved = round_up(2 * bytes, kHugePage);
     void* q = nullptr;
     try {
-        q = reserve_aligned(reserved);
+        q = reserve_aligned(reserved, m.huge);
     } catch (...) {
         report_mapped(-std::ptrdiff_t(bytes - m.bytes));
         throw;

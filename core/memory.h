@@ -98,16 +98,25 @@ struct PageMapping {
     std::size_t bytes = 0;      // accessible, a whole number of pages
     std::size_t reserved = 0;   // address space from p on
     std::size_t discarded = 0;  // of `bytes`, given back by discard_pages()
+    bool huge = false;          // advised for huge pages: `bytes` a whole number of them
 };
-// At least `bytes` accessible (rounded up to whole pages), in a reservation
+// At least `bytes` accessible, rounded up to whole pages: of 2 MiB when
+// `huge` and `bytes` is kWholeHugeMin or more, so that the mapping does not
+// end in a piece of a huge page, which the kernel fills with 4 KiB pages a
+// fault at a time (on the AMD EPYC host of 2026-12-06 a 4 KiB fault took
+// about 10 us, and the last 1.6 MiB of the records' storage of 1M
+// triangles made 400 of them a build; a whole huge page costs up to 2 MiB
+// more, counted, which below 32 MiB would be a sizeable part). In a reservation
 // of at least `reserve` bytes (twice `bytes` if more). `counted` false: the
 // caller reports the mapping's bytes itself (report_mapped_bytes(), e.g.
 // through a PageLedger as it writes them), all of them before the mapping
 // is unmapped.
 // `huge` false: advised against huge pages instead (memory written sparsely,
 // whose count must follow its 4 KiB pages).
+inline constexpr std::size_t kWholeHugeMin = std::size_t(32) << 20;
 PageMapping map_pages(std::size_t bytes, std::size_t reserve = 0, bool counted = true, bool huge = true);
-// Makes at least `bytes` accessible, keeping the contents; m.p may change.
+// Makes at least `bytes` accessible (rounded up as map_pages() rounds),
+// keeping the contents; m.p may change.
 void grow_pages(PageMapping& m, std::size_t bytes);
 // Gives the whole pages inside [offset, offset + bytes) of the mapping back
 // to the system (their contents are gone; they read as zeros if touched
