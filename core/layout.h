@@ -601,7 +601,15 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
     // placement of 1M random triangles took 11.3 to 12.8 ms that way
     // against 4.4 to 5.5 (traced 2-thread tbb builds), and alternated builds
     // of 4M random triangles 1.07 times as long as before the new array
-    // (0.996 with the pages moved). A run then holds up to about 6 MiB it
+    // (0.996 with the pages moved). The area's 2 MiB come with its blocks'
+    // unused range ends never brought in, which the run would fault in 4
+    // KiB at a time: populated by one system call as they move (on the host
+    // of 2026-12-06, where a 4 KiB fault took about 10 us, the placement of
+    // 1M random triangles took 12.5 ms against 14.1, and of 4M 38.9 against
+    // 43.6; giving the area's pages back instead of moving them took 8.2 and
+    // 125: fresh huge pages are slow to come from the host when it has
+    // taken back the memory, as for the 4M scene; medians of 7 and 3 traced
+    // 2-thread tbb builds, alternated). A run then holds up to about 6 MiB it
     // has consumed or not yet written, so below kRunsMin bytes of new array
     // the copies run as one.
     const bool recycle = huge && out.mapped() && nodes.mapped();
@@ -647,7 +655,10 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
                     if (spare) {
                         if (nodes.give_pages(reinterpret_cast<const void*>(spare), base + u, kHuge)) spare = 0;
                     } else {
-                        area.give(area_spare, base + u, kHuge);
+                        // The area's unused range ends were never brought
+                        // in: brought in now, by one system call, rather
+                        // than by a fault per 4 KiB page as the run writes.
+                        if (area.give(area_spare, base + u, kHuge)) populate_pages(base + u, kHuge);
                         area_spare = kNone;
                     }
                 }
