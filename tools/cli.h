@@ -35,7 +35,7 @@ std::string default_scheduler();
 std::string scheduler_names();
 // The entry for `name`, or UsageError naming the ones compiled in.
 const SchedulerEntry& scheduler_or_throw(const std::string& name);
-// Median of a non-empty sample.
+// Median of a sample (0 for an empty one).
 double median(std::vector<double> v);
 // Parses "1,2,4" into numbers (UsageError on junk).
 std::vector<uint32_t> parse_list(const std::string& text, const std::string& what);

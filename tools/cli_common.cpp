@@ -25,6 +25,7 @@ const SchedulerEntry& scheduler_or_throw(const std::string& name) {
 }
 
 double median(std::vector<double> v) {
+    if (v.empty()) return 0.0;
     std::sort(v.begin(), v.end());
     const size_t n = v.size();
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
