@@ -111,6 +111,27 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
     return first_child_slot(r.depth - 1u, rank.rank(pbegin), prights) + r.is_right;
 }
 
+// Where in the overflow area a block puts the `past` nodes past its records
+// when its slots there are [lo, hi) (OverflowArea::slot() of its range's
+// ends; `past` at most hi - lo): from the first page boundary (128 nodes) in
+// them for a left child, up to the last one for a right child (from lo, up
+// to hi, where they do not fit so), so that the unused ends of two sibling
+// blocks' slots meet and no page holds the nodes of two blocks. The area
+// brings in whole pages: with each block's nodes from its range's start,
+// the blocks of 33,000 random triangles (subtrees of up to 1,031 records,
+// 0.86 nodes past the records per record) left almost no page of the area
+// untouched, about 3.4 bytes per triangle of the peak (110 KiB over the
+// nodes).
+inline uint64_t area_start(uint64_t lo, uint64_t hi, uint64_t past, bool right) {
+    constexpr uint64_t kPageNodes = 4096 / sizeof(Node);
+    if (!right) {
+        const uint64_t at = (lo + kPageNodes - 1) / kPageNodes * kPageNodes;
+        return at + past <= hi ? at : lo;
+    }
+    const uint64_t last = hi / kPageNodes * kPageNodes;
+    return last >= lo + past ? last - past : hi - past;
+}
+
 // A subtree one worker built inline (see the top of this file). Its nodes
 // are kept one of two ways, as the arena says (PlacementArena::over_records):
 //  - all `size` of them in the arena's chunks: chunks[chunk] from `first` on,
@@ -118,10 +139,13 @@ uint32_t canonical_slot(const NodeRecord& r, const Rank& rank) {
 //  - over its own records (a one-off build, whose records lie in the final
 //    node array's storage): block nodes 1 to `over_records` written over the
 //    records [root.begin, root.begin + over_records), which the subtree no
-//    longer needs once it is built, and the nodes after them, when the block
-//    has more nodes than records, in the overflow area within the block's
-//    range (area_at()), or, when they are few (PlacementArena::kSpillMax),
-//    in the chunks from (chunk, first) as above (`spilled`).
+//    longer needs once it is built; the nodes after them, when the block has
+//    more nodes than records, `in_area` of them in the overflow area from
+//    `area` on, within the block's slots there (area_start()), and the rest
+//    in the chunks from (chunk, first) as above: those that do not fit in a
+//    dense area's slots, or all of them when they are few
+//    (PlacementArena::kSpillMax). There are nodes past the records only when
+//    the records are all covered (over_records is the block's record count).
 //    Block node 0, the subtree's root, is not stored: `root` describes it
 //    (an inner root's first child is block node 1).
 struct SubtreeBlock {
@@ -131,30 +155,11 @@ struct SubtreeBlock {
     uint32_t size = 0;
     uint32_t leaves = 0;
     uint32_t over_records = 0;
-    bool spilled = false;  // over_records: the nodes past them in the chunks, from (chunk, first)
+    uint32_t area = 0;     // over_records: the first of its nodes in the overflow area
+    uint32_t in_area = 0;  // over_records: how many of its nodes are there
 
-    // Where in the overflow area (page-aligned, 128 nodes a page) the nodes
-    // past the records lie, within the block's range: from the first page
-    // boundary in it for a left child, up to the last one for a right child
-    // (from its start, up to its end, where they do not fit so), so that
-    // the unused ends of two sibling blocks' ranges meet and no page holds
-    // the nodes of two blocks. The area brings in whole pages: with each
-    // block's nodes from its range's start, the blocks of 33,000 random
-    // triangles (subtrees of up to 1,031 records, 0.86 nodes past the
-    // records per record) left almost no page of the area untouched, about
-    // 3.4 bytes per triangle of the peak (110 KiB over the nodes). There
-    // are nodes past the records only when the records are all covered
-    // (over_records is the block's record count).
-    uint32_t area_at() const {
-        constexpr uint64_t kPageNodes = 4096 / sizeof(Node);
-        const uint64_t past = size - 1 - over_records, begin = root.begin, end = begin + over_records;
-        if (!root.is_right) {
-            const uint64_t at = (begin + kPageNodes - 1) / kPageNodes * kPageNodes;
-            return static_cast<uint32_t>(at + past <= end ? at : begin);
-        }
-        const uint64_t last = end / kPageNodes * kPageNodes;
-        return static_cast<uint32_t>(last >= begin + past ? last - past : end - past);
-    }
+    // over_records: how many nodes follow the area's in the chunks.
+    uint32_t in_chunks() const { return size - 1 - over_records - in_area; }
 };
 
 // A chunk of a worker's nodes: from 2 MiB on, 2 MiB-aligned memory, so
@@ -410,11 +415,12 @@ inline void place_block_body(const PlacementArena& a, const SubtreeBlock& b, con
         move_shifted(reinterpret_cast<const Node*>(refs + b.root.begin), b.over_records, c - 1, dst);
         dst += b.over_records;
         body -= b.over_records;
-        if (body == 0) return;
-        if (b.spilled)
-            copy_from_chunks(a, b.chunk, b.first, body, c - 1, dst);
-        else
-            copy_shifted(a.overflow->data() + b.area_at(), body, c - 1, dst);
+        if (b.in_area > 0) {
+            copy_shifted(a.overflow->data() + b.area, b.in_area, c - 1, dst);
+            dst += b.in_area;
+            body -= b.in_area;
+        }
+        if (body > 0) copy_from_chunks(a, b.chunk, b.first, body, c - 1, dst);
     } else {
         // The root is the chunks' node (b.chunk, b.first); the body follows.
         copy_from_chunks(a, b.chunk, b.first + 1, body, c - 1, dst);
@@ -579,8 +585,12 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
     // written); smaller arrays, for which the 2 MiB a run may have counted
     // ahead of its writes would be a sizeable part, fault in 4 KiB pages
     // (and count them), about five times as slow per byte (a 64 MiB mapping
-    // touched in 12.4 ms against 2.6, 2026-12-05).
-    const bool huge = total * sizeof(Node) >= sizes.huge_min;
+    // touched in 12.4 ms against 2.6, 2026-12-05). Also on huge pages when
+    // the overflow area has huge pages (OverflowArea::any_huge(): random
+    // triangles' trees from 983,040 records) and the storage is a mapping,
+    // so that the area's huge pages move whole into the new array instead of
+    // being held until every 4 KiB of them is consumed.
+    const bool huge = total * sizeof(Node) >= sizes.huge_min || (area.any_huge() && nodes.mapped());
     NodeArray out(NodeArray::Uncounted{huge}, total);
     PageLedger touched(out.capacity() * sizeof(Node), huge ? kTouchUnit : 4096, out.mapped());
     // Steps of kDiscardUnit, smaller for small trees (each run may hold up
@@ -609,7 +619,8 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
     // 43.6; giving the area's pages back instead of moving them took 8.2 and
     // 125: fresh huge pages are slow to come from the host when it has
     // taken back the memory, as for the 4M scene; medians of 7 and 3 traced
-    // 2-thread tbb builds, alternated). A run then holds up to about 6 MiB it
+    // 2-thread tbb builds, alternated). A dense area's huge pages (core/
+    // overflow_area.h) move as one page table entry. A run then holds up to about 6 MiB it
     // has consumed or not yet written, so below kRunsMin bytes of new array
     // the copies run as one.
     const bool recycle = huge && out.mapped() && nodes.mapped();
@@ -633,7 +644,8 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
         // with the storage at the end, since the placement's peak comes
         // while it writes its first new huge pages.
         const std::uintptr_t head_end = r == 0 ? storage_done : 0;
-        size_t area_done = (start + kPageNodes - 1) / kPageNodes * kPageNodes, released = start;
+        // The area's slots of records [0, x) end at area.slot(x).
+        size_t area_done = (area.slot(start) + kPageNodes - 1) / kPageNodes * kPageNodes, released = start;
         // The run's slots, and its consumed huge pages of the storage not
         // yet handed on or given back (at most one kept).
         const size_t slots_from = size_t(moves[first[r]].c) * sizeof(Node);
@@ -671,7 +683,7 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
             // Every `step` records, and as soon as a whole 2 MiB of the area
             // or of the storage is consumed, to be handed on to the next new
             // huge page before the run touches it fresh.
-            const bool whole_unit = recycle && (consumed / kHugeNodes > released / kHugeNodes ||
+            const bool whole_unit = recycle && (area.slot(consumed) / kHugeNodes > area.slot(released) / kHugeNodes ||
                                                 (reinterpret_cast<std::uintptr_t>(refs + consumed) & ~storage_unit) >=
                                                     storage_done + kHuge);
             if (consumed >= released + step || whole_unit || k + 1 == first[r + 1]) {
@@ -691,7 +703,8 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
                 storage_done = std::max(storage_done, recycle && spare ? spare + kHuge : storage_to);
                 // Recycling, the area goes in whole 2 MiB, the last kept
                 // for the next huge page the run writes.
-                const size_t area_to = recycle ? consumed / kHugeNodes * kHugeNodes : consumed / kPageNodes * kPageNodes;
+                const size_t area_end = area.slot(consumed);
+                const size_t area_to = recycle ? area_end / kHugeNodes * kHugeNodes : area_end / kPageNodes * kPageNodes;
                 if (recycle && area_to >= area_done + kHugeNodes) {
                     if (area_spare != kNone) area.release(area_spare, area_spare + kHugeNodes);
                     area_spare = area_to - kHugeNodes;

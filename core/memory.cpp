@@ -235,6 +235,16 @@ void populate_pages(void*, std::size_t) noexcept {}
 void unmap_pages(PageMapping& m) noexcept { m = PageMapping{}; }
 #endif
 
+bool advise_huge_region(void* p, std::size_t bytes) noexcept {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    return p != nullptr && bytes > 0 && madvise(p, bytes, MADV_HUGEPAGE) == 0;
+#else
+    (void)p;
+    (void)bytes;
+    return false;
+#endif
+}
+
 void advise_huge_pages(void* p, std::size_t bytes) noexcept {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
     constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;

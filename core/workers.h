@@ -41,15 +41,16 @@ struct Workers {
     // the scene (until late on 2026-12-02: a quarter of the share, at least
     // 1 MiB).
     // `over_records`: the blocks are kept over their records (SubtreeBlock),
-    // the nodes that do not fit over them in the overflow area or, a few,
-    // in the chunks.
+    // the nodes that do not fit over them in the overflow area or, a few
+    // (and those past a dense area's slots), in the chunks.
     // `bins`: the build's bins option; each worker's bin set has room for
     // the most its nodes use (bins_for() of the whole scene), no more.
+    // `area_dense_min`: OverflowArea::reset()'s (tests lower it).
     void reset(uint32_t count, uint32_t primitives, uint32_t bins, uint32_t chunk_nodes = 0,
-               bool over_records = false) {
+               bool over_records = false, size_t area_dense_min = OverflowArea::kHugeAreaMin) {
         w.resize(count);
         const uint32_t max_bins = bins_for(std::max(primitives, 1u), bins);
-        overflow.reset(over_records ? primitives : 0);
+        overflow.reset(over_records ? primitives : 0, area_dense_min);
         // Over their records (a one-off build), the chunks take only the
         // nodes past the records of subtrees with a few more nodes than
         // records (PlacementArena::kSpillMax; the overflow area takes the

@@ -70,8 +70,8 @@ inline bool run_recorded(const KernelContext& ctx, const NodeTask& t, NodeTask c
 // its records being no longer needed (its leaves wrote their ids to the
 // permutation), its nodes after the root are copied over them, as many as
 // there are records; the rest (a tree of more nodes than primitives) go to
-// the overflow area within the subtree's range (SubtreeBlock::area_at(),
-// core/overflow_area.h), or, if they are few, to the worker's chunks.
+// the overflow area within the subtree's slots (core/overflow_area.h,
+// area_start() in core/layout.h), or, if they are few, to the worker's chunks.
 // Those records lie in the final node array's storage, in memory the build
 // has already brought in, and the placement then moves the nodes towards
 // the front of that storage (place_over_records() in core/layout.h): a
@@ -96,13 +96,19 @@ inline void run_subtree_over_records(const KernelContext& ctx, const NodeTask& r
     // subtrees (scratch_cutoff()): the chunks are held whole until the
     // placement ends, while it gives back the area's pages as it goes, and
     // with the threshold at 512 the 2-thread builds of 33,000 random
-    // triangles peaked at 77 to 79 bytes per triangle.
+    // triangles peaked at 77 to 79 bytes per triangle. So do those that do
+    // not fit in the block's slots of a dense area (7/8 of its records).
     const uint32_t spill_max = std::min<uint32_t>(PlacementArena::kSpillMax, ctx.options->tuning.task_cutoff / 8);
-    if (body - b.over_records >= spill_max) {
-        wk.out.overflow->write(b.area_at(), rest, body - b.over_records);
-    } else if (body > b.over_records) {
-        b.spilled = true;
-        const auto [chunk, first] = wk.out.append(rest, body - b.over_records);
+    const uint32_t past = body - b.over_records;
+    OverflowArea& area = *wk.out.overflow;
+    if (past >= spill_max) {
+        const uint64_t lo = area.slot(root.begin), hi = area.slot(size_t(root.begin) + b.over_records);
+        b.in_area = static_cast<uint32_t>(std::min<uint64_t>(past, hi - lo));
+        b.area = static_cast<uint32_t>(area_start(lo, hi, b.in_area, root.is_right));
+        if (b.in_area > 0) area.write(b.area, rest, b.in_area, 2 * size_t(past) >= root.size());
+    }
+    if (past > b.in_area) {
+        const auto [chunk, first] = wk.out.append(rest + b.in_area, past - b.in_area);
         b.chunk = chunk;
         b.first = first;
     }

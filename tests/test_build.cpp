@@ -1117,11 +1117,21 @@ TEST(BuildLayout, BlocksGoOnInNewChunksWhenOneIsFull) {
 // below `subtree` records built over their own records
 // (run_subtree_over_records) by three workers in turn; then
 // place_over_records() with `for_each`. Returns the storage's capacity
-// before the placement.
+// before the placement. ByHand: the build options, the overflow area's
+// `dense_min` (OverflowArea::reset()) and, if given, a count of the blocks
+// whose nodes past their records lie partly in the area and partly in the
+// chunks (`split`).
+struct ByHand {
+    BuildOptions opt;
+    size_t dense_min = canopy::OverflowArea::kHugeAreaMin;
+    size_t* split = nullptr;
+};
+
 template <class ForEach>
 size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, std::vector<uint32_t>& perm,
-                     ForEach&& for_each, uint32_t subtree = 600, canopy::BesideRecordsSizes sizes = {}) {
-    const BuildOptions opt;
+                     ForEach&& for_each, uint32_t subtree = 600, canopy::BesideRecordsSizes sizes = {},
+                     const ByHand& how = {}) {
+    const BuildOptions& opt = how.opt;
     const uint32_t n = uint32_t(m.triangle_count());
     nodes.reserve(canopy::NodesBeforeRecords::initial_capacity(n));
     const size_t storage = nodes.capacity();
@@ -1137,7 +1147,7 @@ size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, std::vecto
     perm.assign(n, ~0u);
     const canopy::KernelContext ctx{refs, perm.data(), &opt, nullptr};
     canopy::Workers workers;
-    workers.reset(3, n, opt.bins, 24, true);
+    workers.reset(3, n, opt.bins, 24, true, how.dense_min);
     std::vector<canopy::NodeTask> pending{root};
     uint32_t turn = 0, subtrees = 0;
     while (!pending.empty()) {
@@ -1156,6 +1166,9 @@ size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, std::vecto
     }
     EXPECT_GT(subtrees, 15u);
     const canopy::PlacementArena* views[] = {&workers[0].out, &workers[1].out, &workers[2].out};
+    if (how.split)
+        for (const canopy::PlacementArena* a : views)
+            for (const canopy::SubtreeBlock& b : a->blocks) *how.split += b.in_area > 0 && b.in_chunks() > 0;
     canopy::place_over_records(std::span<const canopy::PlacementArena* const>(views), refs, nodes, for_each, 0, sizes);
     return storage;
 }
@@ -1363,6 +1376,56 @@ TEST(BuildMemory, PlacementHandsEachConsumedHugePageOnAtOnce) {
     canopy::set_mapped_bytes_observer(nullptr);
 }
 
+TEST(BuildMemory, DenseOverflowAreaBuildsTheSameTree) {
+    // A dense overflow area (from OverflowArea::kHugeAreaMin bytes; 0 here)
+    // gives a block of k records 7k/8 slots (OverflowArea::slot()), makes a
+    // 2 MiB region that a dense block writes first a huge page, counted
+    // whole, and puts the nodes past a block's slots in its worker's chunks.
+    // 200,000 random triangles, with leaf size 4 (about 0.86 nodes past the
+    // records per record, within the slots but for a few blocks) and leaf
+    // size 1 (every block has k/8 more nodes than slots, split between the
+    // area and the chunks): the sequential build's tree, whether the
+    // placement moves pages (a mapped storage: the new array on huge pages,
+    // one run or three) or not (the storage on the heap), in either order of
+    // runs, and the counts balance.
+    if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
+    const TriangleMesh m = canopy::generate("random", 200000, 13);
+    canopy::set_mapped_bytes_observer(observe_mapped);
+    for (const uint32_t leaf : {4u, 1u}) {
+        ByHand how;
+        how.opt.max_leaf = leaf;
+        how.dense_min = 0;
+        const Bvh expected = build(m, how.opt);
+        for (const int variant : {0, 1, 2})
+            for (const bool forward : {false, true}) {
+                const std::string what = "leaf " + std::to_string(leaf) + ", " +
+                                         (variant == 0 ? "heap storage" : variant == 1 ? "one run" : "three runs") +
+                                         (forward ? ", forward" : ", reverse");
+                const long long before = g_mapped.load();
+                size_t split = 0;
+                how.split = &split;
+                {
+                    canopy::NodeArray nodes = variant == 0 ? canopy::NodeArray() : canopy::NodeArray(canopy::NodeArray::MapFrom{0});
+                    std::vector<uint32_t> perm;
+                    const canopy::BesideRecordsSizes sizes{canopy::kHugeMin, variant == 2 ? size_t(0) : canopy::kRunsMin};
+                    if (forward)
+                        build_by_hand(m, nodes, perm, ForwardForEach{}, 4096, sizes, how);
+                    else
+                        build_by_hand(m, nodes, perm, ReverseForEach{}, 4096, sizes, how);
+                    EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << what;
+                    EXPECT_EQ(perm, expected.permutation) << what;
+                    const long long tree = nodes.mapped() ? (long long)(nodes.capacity() * sizeof(canopy::Node)) : 0;
+                    EXPECT_EQ(g_mapped.load() - before, tree) << what;
+                }
+                EXPECT_EQ(g_mapped.load(), before) << what;
+                if (leaf == 1) {
+                    EXPECT_GT(split, 10u) << what;
+                }
+            }
+    }
+    canopy::set_mapped_bytes_observer(nullptr);
+}
+
 TEST(BuildMemory, DiscardedPagesAreCountedOnce) {
     if (!canopy::growable_mappings_available()) GTEST_SKIP() << "no growable mappings on this system";
     canopy::set_mapped_bytes_observer(observe_mapped);
@@ -1544,25 +1607,18 @@ TEST(BuildLayout, FirstChildSlotFormula) {
 }
 
 TEST(BuildLayout, OverflowNodesSitOnWholePagesWithinTheirRange) {
-    // A block's nodes past its records lie within its range, from its first
-    // page boundary (a left child) or up to its last one (a right child),
-    // and where they do not fit so, from its start or up to its end.
+    // A block's nodes past its records lie within its slots, from their
+    // first page boundary (a left child) or up to their last one (a right
+    // child), and where they do not fit so, from their start or up to their
+    // end.
     constexpr uint32_t kPage = 4096 / sizeof(canopy::Node);  // 128 nodes
-    const auto block = [](uint32_t begin, uint32_t records, uint32_t past, bool right) {
-        canopy::SubtreeBlock b;
-        b.root.begin = begin;
-        b.root.is_right = right;
-        b.over_records = records;
-        b.size = 1 + records + past;
-        return b;
-    };
     for (const bool right : {false, true})
         for (uint32_t begin : {0u, 1u, 127u, 128u, 1000u, 0xFFFFFF00u - 4096u})
             for (uint32_t records : {1u, 100u, 200u, 300u, 1031u, 4095u})
                 for (uint32_t past : {0u, 1u, 50u, 99u, 150u, 600u, 4000u}) {
                     if (past >= records) continue;  // at most 2 * records - 1 nodes in all
-                    const canopy::SubtreeBlock b = block(begin, records, past, right);
-                    const uint64_t at = b.area_at(), end = uint64_t(begin) + records;
+                    const uint64_t end = uint64_t(begin) + records;
+                    const uint64_t at = canopy::area_start(begin, end, past, right);
                     ASSERT_GE(at, begin) << begin << " " << records << " " << past << " " << right;
                     ASSERT_LE(at + past, end) << begin << " " << records << " " << past << " " << right;
                     const uint64_t first_page = (uint64_t(begin) + kPage - 1) / kPage * kPage, last_page = end / kPage * kPage;
@@ -1572,10 +1628,10 @@ TEST(BuildLayout, OverflowNodesSitOnWholePagesWithinTheirRange) {
                         EXPECT_EQ(at + past, last_page >= begin + past ? last_page : end) << begin << " " << records;
                 }
     // Siblings: the left one's unused end and the right one's unused start meet.
-    const canopy::SubtreeBlock left = block(1000, 1000, 700, false), right = block(2000, 1000, 700, true);
-    EXPECT_EQ(left.area_at(), 1024u);
-    EXPECT_EQ(right.area_at() + 700, 2944u);
-    EXPECT_GE(right.area_at(), left.area_at() + 700 + 2 * kPage);  // two whole pages between them untouched
+    const uint64_t left = canopy::area_start(1000, 2000, 700, false), right = canopy::area_start(2000, 3000, 700, true);
+    EXPECT_EQ(left, 1024u);
+    EXPECT_EQ(right + 700, 2944u);
+    EXPECT_GE(right, left + 700 + 2 * kPage);  // two whole pages between them untouched
 }
 
 TEST(BuildMemory, SmallScenesGetSmallTasksAndBinSets) {
