@@ -619,10 +619,10 @@ NodeArray place_beside_records(std::span<const BlockMove> moves, const PrimRef* 
     // 43.6; giving the area's pages back instead of moving them took 8.2 and
     // 125: fresh huge pages are slow to come from the host when it has
     // taken back the memory, as for the 4M scene; medians of 7 and 3 traced
-    // 2-thread tbb builds, alternated). A dense area's huge pages (core/
-    // overflow_area.h) move as one page table entry. A run then holds up to about 6 MiB it
-    // has consumed or not yet written, so below kRunsMin bytes of new array
-    // the copies run as one.
+    // 2-thread tbb builds, alternated). A dense area's huge pages
+    // (core/overflow_area.h) move as one page table entry each. A run then
+    // holds up to about 6 MiB it has consumed or not yet written, so below
+    // kRunsMin bytes of new array the copies run as one.
     const bool recycle = huge && out.mapped() && nodes.mapped();
     const std::uintptr_t storage_unit = recycle ? (std::uintptr_t(2) << 20) - 1 : std::uintptr_t(4095);
     groups = std::clamp<size_t>(recycle && total * sizeof(Node) < sizes.runs_min ? 1 : groups, 1,
