@@ -235,26 +235,17 @@ void populate_pages(void*, std::size_t) noexcept {}
 void unmap_pages(PageMapping& m) noexcept { m = PageMapping{}; }
 #endif
 
-bool advise_huge_region(void* p, std::size_t bytes) noexcept {
+bool advise_huge_pages(void* p, std::size_t bytes) noexcept {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
-    return p != nullptr && bytes > 0 && madvise(p, bytes, MADV_HUGEPAGE) == 0;
+    constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;
+    if (p == nullptr || bytes < kHuge) return false;
+    const std::uintptr_t begin = (reinterpret_cast<std::uintptr_t>(p) + kHuge - 1) & ~(kHuge - 1);
+    const std::uintptr_t end = (reinterpret_cast<std::uintptr_t>(p) + bytes) & ~(kHuge - 1);
+    return end > begin && madvise(reinterpret_cast<void*>(begin), end - begin, MADV_HUGEPAGE) == 0;
 #else
     (void)p;
     (void)bytes;
     return false;
-#endif
-}
-
-void advise_huge_pages(void* p, std::size_t bytes) noexcept {
-#if defined(__linux__) && defined(MADV_HUGEPAGE)
-    constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;
-    if (p == nullptr || bytes < kHuge) return;
-    const std::uintptr_t begin = (reinterpret_cast<std::uintptr_t>(p) + kHuge - 1) & ~(kHuge - 1);
-    const std::uintptr_t end = (reinterpret_cast<std::uintptr_t>(p) + bytes) & ~(kHuge - 1);
-    if (end > begin) (void)madvise(reinterpret_cast<void*>(begin), end - begin, MADV_HUGEPAGE);  // advice only
-#else
-    (void)p;
-    (void)bytes;
 #endif
 }
 

@@ -22,11 +22,8 @@ namespace canopy {
 // [p, p + bytes), to take effect for pages not touched yet. Best effort: a
 // no-op when that interior is empty, outside Linux, or when the kernel
 // declines (huge pages disabled). Never changes the memory's contents.
-void advise_huge_pages(void* p, std::size_t bytes) noexcept;
-// Asks for a transparent huge page on exactly [p, p + bytes) (whole 2 MiB,
-// 2 MiB-aligned), before anything there is touched; whether the kernel took
-// the advice (false outside Linux or with huge pages disabled).
-bool advise_huge_region(void* p, std::size_t bytes) noexcept;
+// Returns whether the kernel took the advice (false for an empty interior).
+bool advise_huge_pages(void* p, std::size_t bytes) noexcept;
 
 // Memory for a big array that starts on a 2 MiB boundary, advised for huge
 // pages: from kHugeAllocMin bytes on, so that every whole 2 MiB of it can be

@@ -92,7 +92,6 @@ public:
     // record itself, or in a dense area 7/8 of it (rounded up), so that a
     // subtree of records [b, e) has the slots [slot(b), slot(e)).
     std::size_t slot(std::size_t record) const noexcept { return dense_ ? record - record / 8 : record; }
-    bool dense() const noexcept { return dense_; }
 
     // Writes nodes [at, at + k), their pages brought in by one system call
     // (populate_pages(); a subtree writes 512 nodes or more here, 4 pages
@@ -206,10 +205,6 @@ public:
 
     // Whether some region became a huge page.
     bool any_huge() const noexcept { return any_huge_.load(std::memory_order_relaxed); }
-    // Whether the region holding byte `at` became a huge page (tests).
-    bool huge_region(std::size_t at) const noexcept {
-        return dense_ && regions_[at / kRegion].state.load(std::memory_order_acquire) == kHuge;
-    }
 
 private:
     static constexpr unsigned char kUndecided = 0, kDeciding = 1, kSmall = 2, kHuge = 3;
@@ -235,7 +230,7 @@ private:
             if (s == kUndecided && st.compare_exchange_strong(s, kDeciding, std::memory_order_acq_rel)) {
                 const bool whole = (r + 1) * kRegion <= mapping_.bytes;
                 const bool huge = dense && whole &&
-                                  advise_huge_region(static_cast<char*>(mapping_.p) + r * kRegion, kRegion);
+                                  advise_huge_pages(static_cast<char*>(mapping_.p) + r * kRegion, kRegion);
                 if (huge) {
                     ledger_.touch(r * kRegion, (r + 1) * kRegion);
                     any_huge_.store(true, std::memory_order_relaxed);
