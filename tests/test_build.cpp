@@ -724,7 +724,7 @@ TEST(BuildShape, SingleAndTwoPrimitives) {
     ASSERT_EQ(b1.nodes.size(), 1u);
     EXPECT_EQ(b1.nodes[0].count, 1u);
     EXPECT_EQ(b1.nodes[0].index, 0u);
-    EXPECT_EQ(b1.permutation, std::vector<uint32_t>{0});
+    EXPECT_EQ(b1.permutation, canopy::PrimitiveOrder{0});
 
     // Two far apart triangles with max_leaf 1 must split.
     BuildOptions opt;
@@ -928,7 +928,7 @@ TEST(BuildPrepare, RecordAreasArePrimArea) {
 struct KernelInputs {
     BuildOptions opt;
     std::vector<canopy::PrimRef> refs;
-    std::vector<uint32_t> perm;
+    canopy::PrimitiveOrder perm;
     canopy::NodeTask root;
     explicit KernelInputs(const TriangleMesh& m) {
         const uint32_t n = uint32_t(m.triangle_count());
@@ -954,7 +954,7 @@ TEST(BuildLayout, KernelTasksInRandomOrderPlaceLikeSequential) {
         const Bvh expected = build(m, in.opt);
         const uint32_t n = uint32_t(m.triangle_count());
         const canopy::NodeTask& root = in.root;
-        const std::vector<uint32_t>& perm = in.perm;
+        const canopy::PrimitiveOrder& perm = in.perm;
         const canopy::KernelContext ctx = in.ctx();
         auto bins = std::make_unique<canopy::BinSet>();
         canopy::SkipCounts skip;
@@ -1128,7 +1128,7 @@ struct ByHand {
 };
 
 template <class ForEach>
-size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, std::vector<uint32_t>& perm,
+size_t build_by_hand(const TriangleMesh& m, canopy::NodeArray& nodes, canopy::PrimitiveOrder& perm,
                      ForEach&& for_each, uint32_t subtree = 600, canopy::BesideRecordsSizes sizes = {},
                      const ByHand& how = {}) {
     const BuildOptions& opt = how.opt;
@@ -1204,7 +1204,7 @@ TEST(BuildLayout, InPlaceMovesSplitOverWorkersInAnyOrder) {
             const std::string what = std::string(c.name) + (forward ? ", runs first to last" : ", runs last to first");
             const Bvh expected = build(c.mesh, BuildOptions{});
             canopy::NodeArray nodes = c.mapped ? canopy::NodeArray(canopy::NodeArray::MapFrom{0}) : canopy::NodeArray();
-            std::vector<uint32_t> perm;
+            canopy::PrimitiveOrder perm;
             const size_t storage = forward ? build_by_hand(c.mesh, nodes, perm, ForwardForEach{})
                                            : build_by_hand(c.mesh, nodes, perm, ReverseForEach{});
             EXPECT_TRUE(same_nodes(nodes, expected.nodes)) << what;
@@ -1251,7 +1251,7 @@ TEST(BuildMemory, PlacementBesideTheRecordsGivesThemBackAsItGoes) {
     canopy::set_mapped_bytes_observer(observe_mapped);
     {
         canopy::NodeArray nodes(canopy::NodeArray::MapFrom{0});
-        std::vector<uint32_t> perm;
+        canopy::PrimitiveOrder perm;
         MappedAtFirstRun start;
         const long long before = g_mapped.load();
         build_by_hand(m, nodes, perm, start, 2500);  // blocks of up to 2,150 nodes past their records: in the area
@@ -1322,7 +1322,7 @@ TEST(BuildMemory, PlacementBesideTheRecordsMovesPagesIntoTheNewArray) {
             const long long before = g_mapped.load();
             {
                 canopy::NodeArray nodes(canopy::NodeArray::MapFrom{0});
-                std::vector<uint32_t> perm;
+                canopy::PrimitiveOrder perm;
                 const canopy::BesideRecordsSizes sizes{0, runs_min};
                 if (forward)
                     build_by_hand(m, nodes, perm, ForwardForEach{}, 4096, sizes);
@@ -1363,7 +1363,7 @@ TEST(BuildMemory, PlacementHandsEachConsumedHugePageOnAtOnce) {
     canopy::set_mapped_bytes_observer(observe_mapped);
     {
         canopy::NodeArray nodes(canopy::NodeArray::MapFrom{0});
-        std::vector<uint32_t> perm;
+        canopy::PrimitiveOrder perm;
         MappedAtFirstRun start;
         build_by_hand(m, nodes, perm, start, 4096, canopy::BesideRecordsSizes{0, ~size_t(0)});
         ASSERT_TRUE(same_nodes(nodes, expected.nodes));
@@ -1406,7 +1406,7 @@ TEST(BuildMemory, DenseOverflowAreaBuildsTheSameTree) {
                 how.split = &split;
                 {
                     canopy::NodeArray nodes = variant == 0 ? canopy::NodeArray() : canopy::NodeArray(canopy::NodeArray::MapFrom{0});
-                    std::vector<uint32_t> perm;
+                    canopy::PrimitiveOrder perm;
                     const canopy::BesideRecordsSizes sizes{canopy::kHugeMin, variant == 2 ? size_t(0) : canopy::kRunsMin};
                     if (forward)
                         build_by_hand(m, nodes, perm, ForwardForEach{}, 4096, sizes, how);
