@@ -47,7 +47,8 @@ void* allocate_huge(std::size_t bytes);
 void release_huge(void* p, std::size_t bytes) noexcept;
 
 // A standard allocator over allocate_huge() (the finished Bvh's permutation
-// uses std::allocator, its node array a NodeArray, core/node_array.h).
+// uses plain operator new, core/bvh.h's PrimitiveOrder, and its node array
+// a NodeArray, core/node_array.h).
 template <class T>
 struct HugePageAllocator {
     using value_type = T;
