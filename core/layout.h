@@ -523,11 +523,7 @@ void move_blocks(std::span<const BlockMove> moves, const PrimRef* refs, Node* ou
             const std::uintptr_t limit = at(refs + moves[k].block->root.begin);
             size_t count = 0;
             for (; e < first[r + 1] && at(out + moves[e].c) < limit; ++e) count += moves[e].block->size - 1;
-            // In whole huge pages from 2 MiB on (NodeChunk: 2 MiB-aligned),
-            // since the last part of one would fault 4 KiB at a time.
-            constexpr size_t kHugeNodes = kHugeAllocMin / sizeof(Node);
-            buffer[r].reserve(count * sizeof(Node) >= kHugeAllocMin ? (count + kHugeNodes - 1) / kHugeNodes * kHugeNodes
-                                                                   : count);
+            buffer[r].reserve(count);  // NodeChunk: whole huge pages from 2 MiB on (allocate_huge())
             buffer[r].resize(count);  // Node() writes nothing
             Node* dst = buffer[r].data();
             for (; k < e; ++k) {

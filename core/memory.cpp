@@ -20,6 +20,8 @@ constexpr std::align_val_t kHugeAlign{std::size_t(2) << 20};
 
 void* allocate_huge(std::size_t bytes) {
     if (bytes < kHugeAllocMin) return ::operator new(bytes);
+    // Whole huge pages: a last part of one would fault 4 KiB at a time.
+    bytes = (bytes + kHugeAllocMin - 1) / kHugeAllocMin * kHugeAllocMin;
     void* p = ::operator new(bytes, kHugeAlign);
     advise_huge_pages(p, bytes);
     return p;
