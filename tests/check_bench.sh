@@ -6,7 +6,7 @@
 # itself at the first thread count; Embree's scene build against itself).
 set -eu
 canopy="$1"; out="$2"
-"$canopy" bench gen:sphere:3000 --threads 1,2 --repeat 3 --gap 0 --csv "$out" >/dev/null
+"$canopy" bench gen:sphere:3000 --threads 1,2 --repeat 3 --gap 0 --csv "$out" >"$out.txt"
 awk -F, '
 NR == 1 {
   want = "scene,triangles,threads,builder,median_ms,min_ms,sah,ratio_vs_embree_scene,speedup_vs_T1," \
@@ -43,6 +43,30 @@ END {
   print "bench CSV ok: " rows " rows"
 }' "$out"
 
+# The core check (Linux): one time per CPU the process may use (nproc),
+# each positive, over the 3 rounds, and the CPU of each of the 15 timed
+# 1-thread canopy builds (3 rounds, 5 drivers) noted.
+if [ "$(uname -s)" = Linux ]; then
+  awk -v cpus="$(nproc)" '
+  /^cores: / {
+    seen = 1
+    if ($0 !~ /median of 3 rounds:/) { print "core check: " $0; bad = 1 }
+    n = 0
+    for (i = 1; i < NF; i++) if ($i ~ /^cpu[0-9]+$/) { n++; if (!($(i + 1) > 0)) { print "core check: " $i " " $(i + 1); bad = 1 } }
+    if (n != cpus) { print "core check: " n " CPUs, want " cpus; bad = 1 }
+  }
+  /^  1-thread builds ended on:/ {
+    ended = 1; sum = 0
+    for (i = 5; i <= NF; i += 2) sum += $(i + 1)
+    if (sum != 15) { print "core check: " sum " 1-thread builds noted, want 15: " $0; bad = 1 }
+  }
+  END {
+    if (!seen || !ended) { print "core check: no cores: lines"; bad = 1 }
+    if (bad) exit 1
+    print "core check ok: " cpus " CPUs"
+  }' "$out.txt"
+fi
+
 # --shuffle: the same triangles in another order, so the scene is named as
 # shuffled, has as many triangles, every canopy driver builds the same tree
 # (the same SAH), and that SAH is within 1% of the ordered scene's (big
@@ -50,7 +74,9 @@ END {
 # position, so a tree depends on the input order a little; see README,
 # "The input order").
 sah=$(awk -F, '$3 == 1 && $4 == "sequential" { print $2 "," $7 }' "$out")
-"$canopy" bench gen:sphere:3000 --shuffle 5 --threads 1 --repeat 1 --gap 0 --prefault 0 --csv "$out.shuffled" >/dev/null
+"$canopy" bench gen:sphere:3000 --shuffle 5 --threads 1 --repeat 1 --gap 0 --prefault 0 --no-core-check \
+  --csv "$out.shuffled" >"$out.shuffled.txt"
+if grep -q '^cores: ' "$out.shuffled.txt"; then echo "--no-core-check printed the core check"; exit 1; fi
 awk -F, -v want="$sah" '
 NR > 1 && $4 != "embree_scene" && $4 != "embree_builder" {
   rows++

@@ -2,6 +2,7 @@
 // same scenes and thread counts, alternated (every builder once per round,
 // in a seeded shuffle); one table per scene.
 #include "cli.h"
+#include "core_check.h"
 #include "core/bvh.h"
 #include "core/build_state.h"
 #include "core/sah.h"
@@ -40,6 +41,7 @@ struct BenchArgs {
     std::string csv;
     uint32_t bins = BuildOptions{}.bins;
     uint32_t leaf = BuildOptions{}.max_leaf;
+    bool core_check = true;
 };
 
 enum class Kind { kCanopy, kEmbreeScene, kEmbreeBuilder };
@@ -124,6 +126,7 @@ public:
         options_.bins = a.bins;
         options_.max_leaf = a.leaf;
         options_.check();
+        if (a.core_check) cores_.emplace();
     }
 
     int run() {
@@ -289,8 +292,11 @@ private:
                                       " threads built a different tree than the first canopy build");
                 }
             }
+            if (cores_) cores_->clear();
             for (uint32_t r = 0; r < a_.repeat; ++r) {
                 progress_.show(scene.name + ", round " + std::to_string(r + 1) + "/" + std::to_string(a_.repeat));
+                // Each CPU's speed this round (see core_check.h).
+                if (cores_) cores_->probe();
                 // Every thread count once per round, and within it every
                 // builder once, each in a seeded shuffle drawn afresh each
                 // round: no builder always follows the same one (a
@@ -322,6 +328,8 @@ private:
                         // Every canopy tree equals `canonical` (checked in
                         // the warm-up), so one tree serves every check.
                         results[ti][b].ms.push_back(timed(builders_[b], view, canonical));
+                        if (cores_ && threads_[ti] == 1 && builders_[b].kind == Kind::kCanopy)
+                            cores_->note_calling_cpu();
                     }
                 }
             }
@@ -383,6 +391,10 @@ private:
                 }
             }
         }
+        if (cores_) {
+            const std::string report = cores_->report();
+            if (!report.empty()) std::printf("%s\n", report.c_str());
+        }
         std::fflush(stdout);
     }
 
@@ -392,6 +404,7 @@ private:
     BuildOptions options_;
     Progress progress_{"bench"};
     bool header_printed_ = false;
+    std::optional<CoreCheck> cores_;
 #if CANOPY_HAVE_EMBREE
     std::unique_ptr<embree::Device> device_;
     uint32_t device_threads_ = 0;
@@ -429,6 +442,9 @@ Runner add_bench(CLI::App& app) {
     bench->add_option("--csv", a->csv,
                       "Also write one CSV row per (scene, threads, builder) to FILE "
                       "(speedup_vs_T1: against the smallest thread count)");
+    bench->add_flag("!--no-core-check", a->core_check,
+                    "Do not time the reference build on each CPU once per round (the 'cores:' lines below each "
+                    "table, which show when the CPUs run at unequal speeds)");
     bench->add_option("--bins", a->bins, "Bins per axis (2-256)")->capture_default_str();
     bench->add_option("--leaf", a->leaf, "Largest leaf (1-255)")->capture_default_str();
     return [a, bench]() {
