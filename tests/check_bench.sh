@@ -43,14 +43,16 @@ END {
   print "bench CSV ok: " rows " rows"
 }' "$out"
 
-# The core check (Linux): one time per CPU the process may use (nproc),
-# each positive, over the 3 rounds, and the CPU of each of the 15 timed
-# 1-thread canopy builds (3 rounds, 5 drivers) noted.
+# The core check (Linux): a time for each CPU the process may use (nproc),
+# each positive, over the 3 rounds; the CPU of each of the 15 timed
+# 1-thread canopy builds (3 rounds, 5 drivers) noted; with more than one
+# CPU, the ideal speedup per round, above 1 (a build on every CPU), and
+# each of the 7 builders' (5 without Embree) speedup over it.
 if [ "$(uname -s)" = Linux ]; then
-  awk -v cpus="$(nproc)" '
+  awk -v cpus="$(nproc)" -v builders="$(awk -F, 'NR > 1 && $3 == 1' "$out" | wc -l)" '
   /^cores: / {
     seen = 1
-    if ($0 !~ /median of 3 rounds:/) { print "core check: " $0; bad = 1 }
+    if ($0 !~ /medians of 3 rounds:/) { print "core check: " $0; bad = 1 }
     n = 0
     for (i = 1; i < NF; i++) if ($i ~ /^cpu[0-9]+$/) { n++; if (!($(i + 1) > 0)) { print "core check: " $i " " $(i + 1); bad = 1 } }
     if (n != cpus) { print "core check: " n " CPUs, want " cpus; bad = 1 }
@@ -60,8 +62,20 @@ if [ "$(uname -s)" = Linux ]; then
     for (i = 5; i <= NF; i += 2) sum += $(i + 1)
     if (sum != 15) { print "core check: " sum " 1-thread builds noted, want 15: " $0; bad = 1 }
   }
+  /^  ideal speedup/ {
+    ideal = 1
+    split($0, p, "per round: "); split(p[2], v, " ")
+    if (!(v[1] > 1)) { print "core check: ideal " v[1]; bad = 1 }
+  }
+  /^  speedup at / {
+    scaled = 1
+    split($0, p, "ratios: "); k = split(p[2], v, ", ")
+    if (k != builders) { print "core check: " k " builders over the ideal, want " builders; bad = 1 }
+    for (i = 1; i <= k; i++) { split(v[i], w, " "); if (!(w[2] > 0)) { print "core check: " v[i]; bad = 1 } }
+  }
   END {
     if (!seen || !ended) { print "core check: no cores: lines"; bad = 1 }
+    if (cpus > 1 && (!ideal || !scaled)) { print "core check: no ideal speedup lines"; bad = 1 }
     if (bad) exit 1
     print "core check ok: " cpus " CPUs"
   }' "$out.txt"

@@ -391,11 +391,32 @@ private:
                 }
             }
         }
-        if (cores_) {
-            const std::string report = cores_->report();
-            if (!report.empty()) std::printf("%s\n", report.c_str());
-        }
+        if (cores_) print_scaling(results);
         std::fflush(stdout);
+    }
+
+    // The core check's lines (core_check.h), and each builder's speedup on
+    // every CPU over the round's ideal speedup, the median over the rounds.
+    void print_scaling(const std::vector<std::vector<Measure>>& results) const {
+        const std::string report = cores_->report();
+        if (report.empty()) return;
+        std::printf("%s\n", report.c_str());
+        const std::vector<double> ideal = cores_->ideal_speedups();
+        const auto all = std::find(threads_.begin(), threads_.end(), uint32_t(cores_->cpus()));
+        if (threads_.front() != 1 || all == threads_.end() || *all == 1) return;
+        const size_t ti = size_t(all - threads_.begin());
+        std::string line;
+        for (size_t b = 0; b < builders_.size(); ++b) {
+            const std::vector<double>& one = results[0][b].ms;
+            const std::vector<double>& many = results[ti][b].ms;
+            std::vector<double> r;
+            for (size_t k = 0; k < std::min({one.size(), many.size(), ideal.size()}); ++k)
+                if (ideal[k] > 0.0 && many[k] > 0.0) r.push_back(one[k] / many[k] / ideal[k]);
+            if (!r.empty()) line += (line.empty() ? " " : ", ") + builders_[b].name + " " + fmt("%.2f", median(r));
+        }
+        if (!line.empty())
+            std::printf("  speedup at %u threads / ideal speedup, median of the rounds' ratios:%s\n", *all,
+                        line.c_str());
     }
 
     const BenchArgs& a_;

@@ -39,22 +39,18 @@ CoreCheck::CoreCheck() {
     for (int c = 0; c < CPU_SETSIZE; ++c)
         if (CPU_ISSET(c, &set)) cpus_.push_back(c);
     reference_ = load_scene(kReference).mesh;
-    clear();
 #endif
 }
 
-void CoreCheck::clear() {
-    ms_.assign(cpus_.size(), {});
-    calling_.assign(cpus_.size(), 0);
-    calling_elsewhere_ = 0;
-}
+void CoreCheck::clear() { rounds_.clear(); }
 
 void CoreCheck::probe() {
+    Round& round = rounds_.emplace_back(Round{std::vector<double>(cpus_.size(), 0.0),
+                                              std::vector<uint32_t>(cpus_.size(), 0)});
 #if CANOPY_CAN_PIN
     const SchedulerEntry& seq = *find_scheduler("sequential");
     const TriangleView view = reference_.view();
     for (size_t i = 0; i < cpus_.size(); ++i) {
-        double ms = -1.0;
         // A thread of its own, so that the calling thread (which runs the
         // 1-thread builds) is not moved by the pinning.
         std::thread([&] {
@@ -70,58 +66,69 @@ void CoreCheck::probe() {
                 if (tree.nodes.empty()) return;
                 t.push_back(std::chrono::duration<double, std::milli>(t1 - t0).count());
             }
-            ms = median(std::move(t));
+            round.ms[i] = median(std::move(t));
         }).join();
-        if (ms >= 0.0) ms_[i].push_back(ms);
     }
 #endif
 }
 
 void CoreCheck::note_calling_cpu() {
 #if CANOPY_CAN_PIN
-    const int c = sched_getcpu();
-    const auto it = std::find(cpus_.begin(), cpus_.end(), c);
-    if (it == cpus_.end())
-        ++calling_elsewhere_;
-    else
-        ++calling_[size_t(it - cpus_.begin())];
+    if (rounds_.empty()) return;
+    const auto it = std::find(cpus_.begin(), cpus_.end(), sched_getcpu());
+    if (it != cpus_.end()) ++rounds_.back().calling[size_t(it - cpus_.begin())];
 #endif
 }
 
+std::vector<double> CoreCheck::ideal_speedups() const {
+    std::vector<double> ideal;
+    for (const Round& r : rounds_) {
+        const size_t home = size_t(std::max_element(r.calling.begin(), r.calling.end()) - r.calling.begin());
+        double sum = 0.0;
+        for (double ms : r.ms) sum = ms > 0.0 && sum >= 0.0 ? sum + r.ms[home] / ms : -1.0;
+        ideal.push_back(r.calling.empty() || r.calling[home] == 0 || !(sum > 0.0) ? 0.0 : sum);
+    }
+    return ideal;
+}
+
+namespace {
+// "median (lowest to highest)" of the positive values; "" if none.
+std::string spread_text(std::vector<double> v) {
+    v.erase(std::remove_if(v.begin(), v.end(), [](double x) { return !(x > 0.0); }), v.end());
+    if (v.empty()) return "";
+    const auto [lo, hi] = std::minmax_element(v.begin(), v.end());
+    return fmt("%.2f", median(v)) + " (" + fmt("%.2f", *lo) + " to " + fmt("%.2f", *hi) + ")";
+}
+}  // namespace
+
 std::string CoreCheck::report() const {
-    if (!available()) return "";
-    // The rounds every CPU was timed in (pinning can fail for one).
-    size_t rounds = ms_.empty() ? 0 : ms_[0].size();
-    for (const auto& v : ms_) rounds = std::min(rounds, v.size());
-    if (rounds == 0) return "";
+    if (!available() || rounds_.empty()) return "";
     std::string s = std::string("cores: the reference build (sequential, ") + kReference +
-                    ") on a thread pinned to each CPU, median of " + std::to_string(rounds) + " rounds:";
+                    ") on a thread pinned to each CPU, medians of " + std::to_string(rounds_.size()) + " rounds:";
     std::vector<double> spread;  // per round: slowest CPU / fastest
-    for (size_t r = 0; r < rounds; ++r) {
-        double lo = ms_[0][r], hi = ms_[0][r];
-        for (const auto& v : ms_) lo = std::min(lo, v[r]), hi = std::max(hi, v[r]);
-        if (lo > 0.0) spread.push_back(hi / lo);
+    for (size_t i = 0; i < cpus_.size(); ++i) {
+        std::vector<double> t;
+        for (const Round& r : rounds_)
+            if (r.ms[i] > 0.0) t.push_back(r.ms[i]);
+        s += (i ? ", cpu" : " cpu") + std::to_string(cpus_[i]) + " " + (t.empty() ? "-" : fmt("%.2f ms", median(t)));
     }
+    for (const Round& r : rounds_) {
+        const auto [lo, hi] = std::minmax_element(r.ms.begin(), r.ms.end());
+        if (*lo > 0.0) spread.push_back(*hi / *lo);
+    }
+    if (cpus_.size() > 1 && !spread.empty()) s += "; slowest / fastest per round: " + spread_text(spread);
+    std::vector<uint32_t> calling(cpus_.size(), 0);
+    for (const Round& r : rounds_)
+        for (size_t i = 0; i < cpus_.size(); ++i) calling[i] += r.calling[i];
+    std::string where;
     for (size_t i = 0; i < cpus_.size(); ++i)
-        s += (i ? ", cpu" : " cpu") + std::to_string(cpus_[i]) + " " +
-             fmt("%.2f ms", median(std::vector<double>(ms_[i].begin(), ms_[i].begin() + long(rounds))));
-    if (cpus_.size() > 1 && !spread.empty()) {
-        const auto [mn, mx] = std::minmax_element(spread.begin(), spread.end());
-        s += "\n  slowest / fastest CPU per round: median " + fmt("%.2f", median(spread)) + ", range " +
-             fmt("%.2f", *mn) + " to " + fmt("%.2f", *mx);
-        if (cpus_.size() == 2 && *mx >= 1.1)
-            s += "\n  unequal CPUs: in such a round a 2-thread build, which waits for its slower thread, is at most "
-                 "1 + fastest / slowest times as fast as a 1-thread build on the faster CPU (" +
-                 fmt("%.2fx", 1.0 + 1.0 / *mx) + " at this run's widest spread)";
-    }
-    uint32_t noted = calling_elsewhere_;
-    for (uint32_t c : calling_) noted += c;
-    if (noted) {
-        s += "\n  1-thread builds ended on:";
-        for (size_t i = 0; i < cpus_.size(); ++i)
-            if (calling_[i]) s += " cpu" + std::to_string(cpus_[i]) + " " + std::to_string(calling_[i]);
-        if (calling_elsewhere_) s += " other " + std::to_string(calling_elsewhere_);
-    }
+        if (calling[i]) where += (where.empty() ? " cpu" : ", cpu") + std::to_string(cpus_[i]) + " " + std::to_string(calling[i]);
+    if (!where.empty()) s += "\n  1-thread builds ended on:" + where;
+    const std::string ideal = spread_text(ideal_speedups());
+    if (cpus_.size() > 1 && !ideal.empty())
+        s += "\n  ideal speedup of a build on all " + std::to_string(cpus_.size()) +
+             " CPUs over a 1-thread build on the CPU where that round's ran (sum of its time / each CPU's), "
+             "per round: " + ideal;
     return s;
 }
 
