@@ -37,6 +37,8 @@ std::string scheduler_names();
 const SchedulerEntry& scheduler_or_throw(const std::string& name);
 // Median of a sample (0 for an empty one).
 double median(std::vector<double> v);
+// One number printf-formatted ("%.2f", "%.3fx", ...).
+std::string fmt(const char* format, double v);
 // Parses "1,2,4" into numbers (UsageError on junk).
 std::vector<uint32_t> parse_list(const std::string& text, const std::string& what);
 

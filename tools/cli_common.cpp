@@ -31,6 +31,12 @@ double median(std::vector<double> v) {
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+std::string fmt(const char* format, double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, format, v);
+    return buf;
+}
+
 std::vector<uint32_t> parse_list(const std::string& text, const std::string& what) {
     std::vector<uint32_t> out;
     std::stringstream ss(text);

@@ -101,12 +101,6 @@ void warm_page_pool(size_t bytes) {
     for (size_t i = 0; i < bytes; i += 4096) v[i] = 1;
 }
 
-std::string fmt(const char* f, double v) {
-    char buf[64];
-    std::snprintf(buf, sizeof buf, f, v);
-    return buf;
-}
-
 class Bench {
 public:
     explicit Bench(const BenchArgs& a) : a_(a) {

@@ -23,12 +23,6 @@ namespace {
 // Builds run per CPU and round; their median is the round's time.
 constexpr int kBuilds = 3;
 
-std::string fmt(const char* f, double v) {
-    char buf[64];
-    std::snprintf(buf, sizeof buf, f, v);
-    return buf;
-}
-
 }  // namespace
 
 CoreCheck::CoreCheck() {
@@ -63,7 +57,6 @@ void CoreCheck::probe() {
                 const auto t0 = std::chrono::steady_clock::now();
                 const Bvh tree = seq.build_triangles(view, options_);
                 const auto t1 = std::chrono::steady_clock::now();
-                if (tree.nodes.empty()) return;
                 t.push_back(std::chrono::duration<double, std::milli>(t1 - t0).count());
             }
             round.ms[i] = median(std::move(t));
@@ -84,9 +77,12 @@ std::vector<double> CoreCheck::ideal_speedups() const {
     std::vector<double> ideal;
     for (const Round& r : rounds_) {
         const size_t home = size_t(std::max_element(r.calling.begin(), r.calling.end()) - r.calling.begin());
+        const bool known = home < r.calling.size() && r.calling[home] > 0 &&
+                           std::all_of(r.ms.begin(), r.ms.end(), [](double ms) { return ms > 0.0; });
         double sum = 0.0;
-        for (double ms : r.ms) sum = ms > 0.0 && sum >= 0.0 ? sum + r.ms[home] / ms : -1.0;
-        ideal.push_back(r.calling.empty() || r.calling[home] == 0 || !(sum > 0.0) ? 0.0 : sum);
+        if (known)
+            for (double ms : r.ms) sum += r.ms[home] / ms;
+        ideal.push_back(sum);
     }
     return ideal;
 }
