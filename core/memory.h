@@ -26,15 +26,16 @@ namespace canopy {
 bool advise_huge_pages(void* p, std::size_t bytes) noexcept;
 
 // Memory for a big array that starts on a 2 MiB boundary, advised for huge
-// pages: from kHugeAllocMin bytes on, rounded up to whole 2 MiB, so that
-// all of it can be huge pages (a placement buffer of 3.7 MB with a partial
-// last one took 454 faults a build, 2026-12-06). (An array from plain operator new starts wherever malloc's
-// mapping puts it, just past a 4 KiB page boundary, and only its 2 MiB-
-// aligned interior can have huge pages; the rest faults in 4 KiB pages. On
-// this project's virtual machine (2026-12-03) touching 512 MiB took 32 ms
-// in huge pages and 1,300 ms in 4 KiB pages, about 10 microseconds a
-// fault.) Smaller arrays come from plain operator new. release_huge()
-// takes the same byte count as allocate_huge() was given.
+// pages: from kHugeAllocMin bytes on, rounded up to whole 2 MiB, so that all
+// of it can be huge pages (a placement buffer of 3.7 MB with a partial last
+// one took 454 faults a build, 2026-12-06). (An array from plain operator
+// new starts wherever malloc's mapping puts it, just past a 4 KiB page
+// boundary, and only its 2 MiB-aligned interior can have huge pages; the
+// rest faults in 4 KiB pages. On this project's virtual machine (2026-12-03)
+// touching 512 MiB took 32 ms in huge pages and 1,300 ms in 4 KiB pages,
+// about 10 microseconds a fault.) Smaller arrays come from plain operator
+// new. release_huge() takes the same byte count as allocate_huge() was
+// given.
 //
 // Used for the parallel drivers' node chunks (NodeChunk). The records array
 // (RawArray) stays on plain operator new: 2 MiB-aligned, the 1M sphere's

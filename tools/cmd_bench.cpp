@@ -401,12 +401,11 @@ private:
         const size_t ti = size_t(all - threads_.begin());
         std::string line;
         for (size_t b = 0; b < builders_.size(); ++b) {
-            const std::vector<double>& one = results[0][b].ms;
-            const std::vector<double>& many = results[ti][b].ms;
-            std::vector<double> r;
-            for (size_t k = 0; k < std::min({one.size(), many.size(), ideal.size()}); ++k)
-                if (ideal[k] > 0.0 && many[k] > 0.0) r.push_back(one[k] / many[k] / ideal[k]);
-            if (!r.empty()) line += (line.empty() ? " " : ", ") + builders_[b].name + " " + fmt("%.2f", median(r));
+            // one / (many * ideal) per round; rounds of unknown ideal (0) are skipped.
+            std::vector<double> scaled = results[ti][b].ms;
+            for (size_t k = 0; k < scaled.size(); ++k) scaled[k] *= k < ideal.size() ? ideal[k] : 0.0;
+            if (const auto r = median_of_ratios(results[0][b].ms, scaled))
+                line += (line.empty() ? " " : ", ") + builders_[b].name + " " + fmt("%.2f", *r);
         }
         if (!line.empty())
             std::printf("  speedup at %u threads / ideal speedup, median of the rounds' ratios:%s\n", *all,
