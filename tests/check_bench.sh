@@ -7,16 +7,25 @@
 set -eu
 canopy="$1"; out="$2"
 "$canopy" bench gen:sphere:3000 --threads 1,2 --repeat 3 --gap 0 --csv "$out" >"$out.txt"
-awk -F, '
+# The last column (the speedup over the core check's ideal) is filled on
+# the rows at as many threads as the process may use CPUs (Linux, 2 or more
+# CPUs), and empty on the others.
+cpus=1
+if [ "$(uname -s)" = Linux ]; then cpus="$(nproc)"; fi
+awk -F, -v cpus="$cpus" '
 NR == 1 {
   want = "scene,triangles,threads,builder,median_ms,min_ms,sah,ratio_vs_embree_scene,speedup_vs_T1," \
-         "ratio_vs_embree_scene_per_round,speedup_vs_T1_per_round"
+         "ratio_vs_embree_scene_per_round,speedup_vs_T1_per_round,speedup_over_ideal_per_round"
   if ($0 != want) { print "unexpected header: " $0; bad = 1 }
   next
 }
 {
   rows++
-  if (NF != 11) { print "row " NR ": " NF " fields"; bad = 1 }
+  if (NF != 12) { print "row " NR ": " NF " fields"; bad = 1 }
+  if (cpus > 1 && $3 == cpus) {
+    if (!($12 > 0)) { print "row " NR ": speedup over the ideal " $12; bad = 1 }
+    over_ideal++
+  } else if ($12 != "") { print "row " NR ": speedup over the ideal at " $3 " threads: " $12; bad = 1 }
   if (tris == "") tris = $2
   if ($1 != "gen:sphere:3000" || !($2 > 0) || $2 != tris) { print "row " NR ": scene " $1 " " $2; bad = 1 }
   if (!($5 > 0 && $6 > 0 && $6 <= $5)) { print "row " NR ": median " $5 ", min " $6; bad = 1 }
@@ -39,6 +48,7 @@ END {
   # compiled in.
   if (canopy_rows != 10) { print canopy_rows " canopy rows, want 10"; bad = 1 }
   if (rows != (embree ? 14 : 10)) { print rows " rows"; bad = 1 }
+  if (cpus == 2 && over_ideal != rows / 2) { print over_ideal " rows with the speedup over the ideal"; bad = 1 }
   if (bad) exit 1
   print "bench CSV ok: " rows " rows"
 }' "$out"

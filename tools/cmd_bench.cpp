@@ -129,7 +129,7 @@ public:
             csv.open(a_.csv);
             if (!csv) throw Error("cannot write '" + a_.csv + "'");
             csv << "scene,triangles,threads,builder,median_ms,min_ms,sah,ratio_vs_embree_scene,speedup_vs_T1,"
-                   "ratio_vs_embree_scene_per_round,speedup_vs_T1_per_round\n";
+                   "ratio_vs_embree_scene_per_round,speedup_vs_T1_per_round,speedup_over_ideal_per_round\n";
         }
         std::vector<std::string> specs = a_.scenes;
         if (specs.empty()) specs.push_back("");
@@ -381,12 +381,34 @@ private:
                     csv << csv_field(name) << ',' << n << ',' << threads_[ti] << ',' << builders_[b].name << ','
                         << fmt("%.4f", m.median) << ',' << fmt("%.4f", m.min) << ','
                         << (m.sah ? fmt("%.6f", *m.sah) : "") << ',' << c(ratio) << ',' << c(speedup) << ','
-                        << c(ratio_rounds) << ',' << c(speedup_rounds) << '\n';
+                        << c(ratio_rounds) << ',' << c(speedup_rounds) << ',' << c(over_ideal(results, ti, b))
+                        << '\n';
                 }
             }
         }
         if (cores_) print_scaling(results);
         std::fflush(stdout);
+    }
+
+    // The thread count whose speedups the core check's ideal applies to:
+    // every CPU the process may use, with 1 thread measured first.
+    std::optional<size_t> ideal_threads_index() const {
+        if (!cores_ || cores_->cpus() < 2 || threads_.front() != 1) return std::nullopt;
+        const auto all = std::find(threads_.begin(), threads_.end(), uint32_t(cores_->cpus()));
+        if (all == threads_.end()) return std::nullopt;
+        return size_t(all - threads_.begin());
+    }
+
+    // Builder b's speedup at thread count ti over each round's ideal speedup,
+    // the median over the rounds (rounds of unknown ideal, 0, are skipped);
+    // none unless ti is ideal_threads_index().
+    std::optional<double> over_ideal(const std::vector<std::vector<Measure>>& results, size_t ti, size_t b) const {
+        if (ideal_threads_index() != ti) return std::nullopt;
+        const std::vector<double> ideal = cores_->ideal_speedups();
+        // one / (many * ideal) per round
+        std::vector<double> scaled = results[ti][b].ms;
+        for (size_t k = 0; k < scaled.size(); ++k) scaled[k] *= k < ideal.size() ? ideal[k] : 0.0;
+        return median_of_ratios(results[0][b].ms, scaled);
     }
 
     // The core check's lines (core_check.h), and each builder's speedup on
@@ -395,20 +417,14 @@ private:
         const std::string report = cores_->report();
         if (report.empty()) return;
         std::printf("%s\n", report.c_str());
-        const std::vector<double> ideal = cores_->ideal_speedups();
-        const auto all = std::find(threads_.begin(), threads_.end(), uint32_t(cores_->cpus()));
-        if (threads_.front() != 1 || all == threads_.end() || *all == 1) return;
-        const size_t ti = size_t(all - threads_.begin());
+        const std::optional<size_t> ti = ideal_threads_index();
+        if (!ti) return;
         std::string line;
-        for (size_t b = 0; b < builders_.size(); ++b) {
-            // one / (many * ideal) per round; rounds of unknown ideal (0) are skipped.
-            std::vector<double> scaled = results[ti][b].ms;
-            for (size_t k = 0; k < scaled.size(); ++k) scaled[k] *= k < ideal.size() ? ideal[k] : 0.0;
-            if (const auto r = median_of_ratios(results[0][b].ms, scaled))
+        for (size_t b = 0; b < builders_.size(); ++b)
+            if (const auto r = over_ideal(results, *ti, b))
                 line += (line.empty() ? " " : ", ") + builders_[b].name + " " + fmt("%.2f", *r);
-        }
         if (!line.empty())
-            std::printf("  speedup at %u threads / ideal speedup, median of the rounds' ratios:%s\n", *all,
+            std::printf("  speedup at %u threads / ideal speedup, median of the rounds' ratios:%s\n", threads_[*ti],
                         line.c_str());
     }
 
