@@ -122,7 +122,8 @@ void run_in_arena(BuildState& st, Body&& body) {
     st.allocate_records();
     tbb::task_arena arena(static_cast<int>(threads));
     arena.execute([&] {
-        sched::prepare_parallel(st, threads, TbbForEach{});
+        sched::prepare_parallel(st, threads, TbbForEach{},
+                                [] { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); });
         body(threads);
     });
 }

@@ -109,7 +109,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
 template <class Body>
 void omp_build(BuildState& st, uint32_t threads, Body&& body) {
     st.stats.threads_used = threads;
-    prepare_parallel(st, threads, OmpLoop{threads});
+    prepare_parallel(st, threads, OmpLoop{threads}, [] { return static_cast<uint32_t>(omp_get_thread_num()); });
     Workers& workers = st.workers;
     start_workers(st, workers, threads);
 #pragma omp parallel num_threads(threads)

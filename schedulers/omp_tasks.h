@@ -38,15 +38,24 @@ struct OmpTasks {
         st.allocate_records_in_tree();  // before any context() is taken
         const KernelContext ctx = st.context(threads);
         sched::TopPhase top;
+        sched::TaskClaims claims;
+        const uint32_t n = st.n;
         Spawner spawn{{0}, static_cast<int>(threads) - 1};
         sched::omp_build(st, threads, [&](sched::Workers& workers, uint32_t team) {
             sched::omp_top_phase(ctx, st.n, team, top, workers, st.root);
 #pragma omp single
             {
+                // Each thread takes first the tasks over the records it
+                // prepared (sched::TaskClaims), when they are few enough.
+                const bool claimed = top.small.size() <= sched::TaskClaims::kMax;
                 for (size_t i = 0; i < top.small.size(); ++i) {
-                    const NodeTask t = top.small[i];
-#pragma omp task firstprivate(t) shared(workers, spawn)
-                    task(ctx, t, workers, spawn);
+#pragma omp task firstprivate(i) shared(workers, spawn, top, claims)
+                    {
+                        const size_t k = claimed ? claims.claim(top.small, static_cast<uint32_t>(omp_get_thread_num()),
+                                                                n, team)
+                                                 : i;
+                        task(ctx, top.small[k], workers, spawn);
+                    }
                 }
             }  // the barrier here waits for every task
         });

@@ -34,7 +34,8 @@ struct Tbb {
                     for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
                 });
             };
-            sched::prepare_parallel(st, threads, for_each);
+            auto slot = [] { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); };
+            sched::prepare_parallel(st, threads, for_each, slot);
             // Slots are indexed by the arena's thread index, unique per thread.
             sched::Workers& workers = st.workers;
             sched::start_workers(st, workers, static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
@@ -60,7 +61,8 @@ private:
             }
             NodeTask children[2];
             bool split;
-            if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
+            const bool team = sched::team_parallel(t.size(), n, threads, ctx.options->tuning);
+            if (team) {
                 const TraceScope trace(ctx.trace, t, me().id, TraceSpan::Parallel);
                 ParallelNode pn(ctx, t, threads);
                 split = run_parallel_node(
@@ -77,6 +79,17 @@ private:
                 split = sched::run_recorded(ctx, t, children, me());
             }
             if (!split) return;
+            if (team) {
+                // The team's children: each thread takes first the one over
+                // the records it prepared (sched::TaskClaims).
+                sched::TaskClaims claims;
+                const auto take = [&] {
+                    const uint32_t slot = static_cast<uint32_t>(tbb::this_task_arena::current_thread_index());
+                    task(children[claims.claim(children, slot, n, threads)]);
+                };
+                tbb::parallel_invoke(take, take);
+                return;
+            }
             tbb::parallel_invoke([&] { task(children[0]); }, [&] { task(children[1]); });
         }
     };
