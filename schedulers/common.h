@@ -65,7 +65,7 @@ public:
         : parts_(std::max(1u, parts)), per_(per_part), next_(new std::atomic<uint32_t>[parts_]) {
         for (uint32_t p = 0; p < parts_; ++p) next_[p].store(0, std::memory_order_relaxed);
     }
-    // Only as many calls as blocks: one of them finds every run used up.
+    // At most one call per block: then every call finds a block left.
     uint32_t claim(uint32_t slot) {
         for (uint32_t k = 0;; ++k) {
             const uint32_t p = (slot + k) % parts_;
@@ -90,11 +90,12 @@ inline uint32_t home_slot(const NodeTask& t, uint32_t n, uint32_t threads) {
 // Tasks handed out at the top of the tree (the children of the team's
 // nodes), at most 64: each call of claim() takes one not yet taken, the
 // first whose records the calling thread prepared (home_slot()) if one is
-// left, else the first left. On the 2-core machines the thread that had
-// prepared the other half took the dragon's bigger child of the root in
-// every traced tbb build, and it took 0.79 ms (median of 10) against 0.37
-// when the preparing thread took it. Only which thread builds a task
-// depends on this, never the tree (see the top of this file).
+// left, else the first left. Before this, on the 2-core machines, the
+// thread that had not prepared them took the dragon's bigger child of the
+// root in every traced tbb build: 0.76 ms against 0.53 with the claims
+// (medians of 10 traces each; 0.18 to 0.31 in 1-thread builds). Only which
+// thread builds a task depends on this, never the tree (see the top of
+// this file).
 class TaskClaims {
 public:
     static constexpr size_t kMax = 64;
@@ -210,7 +211,7 @@ inline void run_subtree(const KernelContext& ctx, const NodeTask& root, Worker& 
 // team): thread s takes first the blocks of the s-th part of the records,
 // in order, and then what is left of the others' parts (BlockClaims), so
 // that each thread's records are in its own caches when the top of the
-// tree hands it the tasks over them (claim_task()).
+// tree hands it the tasks over them (TaskClaims).
 template <class ForEach, class Slot>
 void prepare_parallel(BuildState& st, uint32_t threads, ForEach&& for_each, Slot&& slot) {
     const TraceScope trace(st.trace, st.n, 0, TraceSpan::Prepare);

@@ -24,6 +24,8 @@ struct OmpTeam {
 #pragma omp single
         fn();
     }
+    // The calling thread's index in the team.
+    static uint32_t slot() { return static_cast<uint32_t>(omp_get_thread_num()); }
 };
 
 // A standalone parallel loop (opens its own region): the prepare's blocks
@@ -109,7 +111,7 @@ inline void omp_top_phase(const KernelContext& ctx, uint32_t n, uint32_t team, T
 template <class Body>
 void omp_build(BuildState& st, uint32_t threads, Body&& body) {
     st.stats.threads_used = threads;
-    prepare_parallel(st, threads, OmpLoop{threads}, [] { return static_cast<uint32_t>(omp_get_thread_num()); });
+    prepare_parallel(st, threads, OmpLoop{threads}, OmpTeam::slot);
     Workers& workers = st.workers;
     start_workers(st, workers, threads);
 #pragma omp parallel num_threads(threads)

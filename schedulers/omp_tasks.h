@@ -51,9 +51,7 @@ struct OmpTasks {
                 for (size_t i = 0; i < top.small.size(); ++i) {
 #pragma omp task firstprivate(i) shared(workers, spawn, top, claims)
                     {
-                        const size_t k = claimed ? claims.claim(top.small, static_cast<uint32_t>(omp_get_thread_num()),
-                                                                n, team)
-                                                 : i;
+                        const size_t k = claimed ? claims.claim(top.small, sched::OmpTeam::slot(), n, team) : i;
                         task(ctx, top.small[k], workers, spawn);
                     }
                 }

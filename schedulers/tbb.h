@@ -34,7 +34,6 @@ struct Tbb {
                     for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
                 });
             };
-            auto slot = [] { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); };
             sched::prepare_parallel(st, threads, for_each, slot);
             // Slots are indexed by the arena's thread index, unique per thread.
             sched::Workers& workers = st.workers;
@@ -46,6 +45,9 @@ struct Tbb {
     }
 
 private:
+    // The calling thread's index in the arena (its slot in the team).
+    static uint32_t slot() { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); }
+
     struct Builder {
         KernelContext ctx;
         uint32_t n, threads;
@@ -83,10 +85,7 @@ private:
                 // The team's children: each thread takes first the one over
                 // the records it prepared (sched::TaskClaims).
                 sched::TaskClaims claims;
-                const auto take = [&] {
-                    const uint32_t slot = static_cast<uint32_t>(tbb::this_task_arena::current_thread_index());
-                    task(children[claims.claim(children, slot, n, threads)]);
-                };
+                const auto take = [&] { task(children[claims.claim(children, slot(), n, threads)]); };
                 tbb::parallel_invoke(take, take);
                 return;
             }
