@@ -48,7 +48,9 @@ done
 # a lower task cutoff keeps the workers' scratch arrays small, the bin sets
 # hold only the bins the scene's root uses, and the blocks' nodes past their
 # records sit on whole pages of the area (sched::scratch_cutoff(),
-# BinSet, SubtreeBlock::area_at()): 69.7 to 70.9 measured (76.5 before).
+# BinSet, SubtreeBlock::area_at()): 69.7 to 70.9 measured (76.5 before;
+# up to 72.59 on a loaded machine until a worker's scratch array stopped
+# holding its old and new storage at once, 6412a93: 69.9 to 71.7 after).
 # All build the same tree per scene.
 for scene in gen:random:1100000 gen:random:200000 gen:random:100000 gen:random:50000; do
   hashes=
