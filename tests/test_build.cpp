@@ -34,6 +34,7 @@
 #include <random>
 #include <span>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <sys/mman.h>
@@ -1656,4 +1657,75 @@ TEST(BuildMemory, SmallScenesGetSmallTasksAndBinSets) {
     EXPECT_EQ(odd.base, set.base + 3 * 32);
     for (int a = 0; a < 3; ++a)
         for (uint32_t k = 0; k < 32; ++k) EXPECT_EQ(odd.count(a, k) + set.count(a, k), 0u);
+}
+
+// prepare_parallel()'s blocks: each block once, whatever the slots and the
+// timing; a caller takes the next block of its own run while one is left,
+// then the next of the runs after its own.
+TEST(BuildSchedulers, BlockClaimsHandEachBlockOnceOwnRunFirst) {
+    canopy::sched::BlockClaims c(3, 4);  // runs {0..3}, {4..7}, {8..11}
+    EXPECT_EQ(c.claim(1), 4u);
+    EXPECT_EQ(c.claim(1), 5u);
+    EXPECT_EQ(c.claim(4), 6u);  // slot 4 is run 4 mod 3 = 1
+    EXPECT_EQ(c.claim(1), 7u);
+    EXPECT_EQ(c.claim(1), 8u);  // run 1 used up: the next run's next block
+    EXPECT_EQ(c.claim(0), 0u);
+    std::vector<int> seen(12, 0);
+    for (uint32_t b : {4u, 5u, 6u, 7u, 8u, 0u}) ++seen[b];
+    for (int k = 0; k < 6; ++k) ++seen[c.claim(2)];  // 9, 10, 11, then run 0's 1, 2, 3
+    for (int s : seen) EXPECT_EQ(s, 1);
+
+    // Four threads racing over 4 runs of 500 blocks, as many claims as blocks.
+    canopy::sched::BlockClaims race(4, 500);
+    std::vector<std::atomic<int>> got(2000);
+    std::atomic<int> calls{2000};
+    std::vector<std::thread> team;
+    for (uint32_t slot = 0; slot < 4; ++slot)
+        team.emplace_back([&, slot] {
+            while (calls.fetch_sub(1) > 0) got[race.claim(slot)].fetch_add(1);
+        });
+    for (auto& t : team) t.join();
+    for (const auto& g : got) EXPECT_EQ(g.load(), 1);
+}
+
+// The tasks the top of the tree hands out: each once, the caller's own
+// (the one whose middle lies in the part of the records its slot prepared)
+// first, else the first left.
+TEST(BuildSchedulers, TaskClaimsTakeTheTaskOverTheCallersPartFirst) {
+    canopy::NodeTask left, right;
+    left.begin = 0;
+    left.end = 600;
+    right.begin = 600;
+    right.end = 1000;
+    const canopy::NodeTask two[2] = {left, right};
+    EXPECT_EQ(canopy::sched::home_slot(left, 1000, 2), 0u);
+    EXPECT_EQ(canopy::sched::home_slot(right, 1000, 2), 1u);
+    {
+        canopy::sched::TaskClaims c;
+        EXPECT_EQ(c.claim(two, 1, 1000, 2), 1u);
+        EXPECT_EQ(c.claim(two, 1, 1000, 2), 0u);  // its own is taken: the other
+    }
+    {
+        canopy::sched::TaskClaims c;
+        EXPECT_EQ(c.claim(two, 0, 1000, 2), 0u);
+        EXPECT_EQ(c.claim(two, 0, 1000, 2), 1u);
+    }
+    // Eight tasks tiling [0, 8000), two threads racing: each task once.
+    std::vector<canopy::NodeTask> eight(8);
+    for (uint32_t i = 0; i < 8; ++i) {
+        eight[i].begin = 1000 * i;
+        eight[i].end = 1000 * (i + 1);
+    }
+    canopy::sched::TaskClaims c;
+    std::vector<std::atomic<int>> got(8);
+    std::atomic<int> calls{8};
+    std::thread a([&] {
+        while (calls.fetch_sub(1) > 0) got[c.claim(eight, 0, 8000, 2)].fetch_add(1);
+    });
+    std::thread b([&] {
+        while (calls.fetch_sub(1) > 0) got[c.claim(eight, 1, 8000, 2)].fetch_add(1);
+    });
+    a.join();
+    b.join();
+    for (const auto& g : got) EXPECT_EQ(g.load(), 1);
 }
