@@ -122,8 +122,7 @@ void run_in_arena(BuildState& st, Body&& body) {
     st.allocate_records();
     tbb::task_arena arena(static_cast<int>(threads));
     arena.execute([&] {
-        sched::prepare_parallel(st, threads, TbbForEach{},
-                                [] { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); });
+        sched::prepare_parallel(st, threads, TbbForEach{}, Tbb::slot);
         body(threads);
     });
 }
@@ -195,7 +194,7 @@ private:
         uint32_t n, threads;
         std::vector<Worker>& workers;
 
-        Worker& me() { return workers[static_cast<size_t>(tbb::this_task_arena::current_thread_index())]; }
+        Worker& me() { return workers[Tbb::slot()]; }
 
         bool run_recorded(const NodeTask& t, NodeTask children[2]) {
             Worker& wk = me();
@@ -327,7 +326,7 @@ private:
         uint32_t n, threads;
         std::vector<Worker>& workers;
 
-        Worker& me() { return workers[static_cast<size_t>(tbb::this_task_arena::current_thread_index())]; }
+        Worker& me() { return workers[Tbb::slot()]; }
 
         Link task(const NodeTask& t) {
             if (sched::below_cutoff(t, ctx.options->tuning)) {

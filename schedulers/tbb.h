@@ -19,6 +19,10 @@ namespace canopy {
 struct Tbb {
     static constexpr const char* name = "tbb";
 
+    // The calling thread's index in the arena (its slot in the team, and its
+    // worker's index); public for the benchmarks that drive the same arena.
+    static uint32_t slot() { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); }
+
     static void run(BuildState& st) {
         // Never more threads than the calling context allows (inside a user's
         // arena, its concurrency), so nothing is oversubscribed.
@@ -45,15 +49,13 @@ struct Tbb {
     }
 
 private:
-    // The calling thread's index in the arena (its slot in the team).
-    static uint32_t slot() { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); }
 
     struct Builder {
         KernelContext ctx;
         uint32_t n, threads;
         sched::Workers& workers;
 
-        sched::Worker& me() { return workers[static_cast<size_t>(tbb::this_task_arena::current_thread_index())]; }
+        sched::Worker& me() { return workers[slot()]; }
 
         void task(const NodeTask& t) {
             if (sched::below_cutoff(t, ctx.options->tuning)) {

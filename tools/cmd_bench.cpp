@@ -356,6 +356,8 @@ private:
         size_t width = 7;
         for (const Builder& b : builders_) width = std::max(width, b.name.size());
 
+        // The core check's ideal speedup of each round, read once for the scene.
+        const std::vector<double> ideal = ideal_threads_index() ? cores_->ideal_speedups() : std::vector<double>{};
         std::printf("\nscene %s: %zu triangles\n", name.c_str(), n);
         std::printf("%7s  %-*s %10s %10s %9s %10s %9s %8s %9s\n", "threads", int(width), "builder", "median_ms",
                     "min_ms", "SAH", "vs_embree", "per_round", "speedup", "per_round");
@@ -381,12 +383,12 @@ private:
                     csv << csv_field(name) << ',' << n << ',' << threads_[ti] << ',' << builders_[b].name << ','
                         << fmt("%.4f", m.median) << ',' << fmt("%.4f", m.min) << ','
                         << (m.sah ? fmt("%.6f", *m.sah) : "") << ',' << c(ratio) << ',' << c(speedup) << ','
-                        << c(ratio_rounds) << ',' << c(speedup_rounds) << ',' << c(over_ideal(results, ti, b))
+                        << c(ratio_rounds) << ',' << c(speedup_rounds) << ',' << c(over_ideal(results, ti, b, ideal))
                         << '\n';
                 }
             }
         }
-        if (cores_) print_scaling(results);
+        if (cores_) print_scaling(results, ideal);
         std::fflush(stdout);
     }
 
@@ -399,12 +401,13 @@ private:
         return size_t(all - threads_.begin());
     }
 
-    // Builder b's speedup at thread count ti over each round's ideal speedup,
-    // the median over the rounds (rounds of unknown ideal, 0, are skipped);
-    // none unless ti is ideal_threads_index().
-    std::optional<double> over_ideal(const std::vector<std::vector<Measure>>& results, size_t ti, size_t b) const {
+    // Builder b's speedup at thread count ti over each round's ideal speedup
+    // (ideal: the core check's, one per round), the median over the rounds
+    // (rounds of unknown ideal, 0, are skipped); none unless ti is
+    // ideal_threads_index().
+    std::optional<double> over_ideal(const std::vector<std::vector<Measure>>& results, size_t ti, size_t b,
+                                     const std::vector<double>& ideal) const {
         if (ideal_threads_index() != ti) return std::nullopt;
-        const std::vector<double> ideal = cores_->ideal_speedups();
         // one / (many * ideal) per round
         std::vector<double> scaled = results[ti][b].ms;
         for (size_t k = 0; k < scaled.size(); ++k) scaled[k] *= k < ideal.size() ? ideal[k] : 0.0;
@@ -413,7 +416,7 @@ private:
 
     // The core check's lines (core_check.h), and each builder's speedup on
     // every CPU over the round's ideal speedup, the median over the rounds.
-    void print_scaling(const std::vector<std::vector<Measure>>& results) const {
+    void print_scaling(const std::vector<std::vector<Measure>>& results, const std::vector<double>& ideal) const {
         const std::string report = cores_->report();
         if (report.empty()) return;
         std::printf("%s\n", report.c_str());
@@ -421,7 +424,7 @@ private:
         if (!ti) return;
         std::string line;
         for (size_t b = 0; b < builders_.size(); ++b)
-            if (const auto r = over_ideal(results, *ti, b))
+            if (const auto r = over_ideal(results, *ti, b, ideal))
                 line += (line.empty() ? " " : ", ") + builders_[b].name + " " + fmt("%.2f", *r);
         if (!line.empty())
             std::printf("  speedup at %u threads / ideal speedup, median of the rounds' ratios:%s\n", threads_[*ti],
