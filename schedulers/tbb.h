@@ -49,7 +49,6 @@ struct Tbb {
     }
 
 private:
-
     struct Builder {
         KernelContext ctx;
         uint32_t n, threads;
