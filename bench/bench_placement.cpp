@@ -98,15 +98,8 @@ inline uint32_t tbb_threads(const BuildState& st) {
     return threads <= 1 && !g_force_parallel ? 0 : threads;
 }
 
-// tbb::parallel_for over [0, k), one index per range, as schedulers/tbb.h.
-struct TbbForEach {
-    template <class Fn>
-    void operator()(uint32_t k, Fn&& fn) const {
-        tbb::parallel_for(tbb::blocked_range<uint32_t>(0, k, 1), [&](const tbb::blocked_range<uint32_t>& r) {
-            for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
-        });
-    }
-};
+// The library's parallel loop (Tbb::ForEach, schedulers/tbb.h).
+using TbbForEach = Tbb::ForEach;
 
 // What every driver below starts with: the sequential fallback (as Tbb),
 // then in a task arena of `threads` threads the parallel prepare and

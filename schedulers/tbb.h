@@ -23,6 +23,18 @@ struct Tbb {
     // worker's index); public for the benchmarks that drive the same arena.
     static uint32_t slot() { return static_cast<uint32_t>(tbb::this_task_arena::current_thread_index()); }
 
+    // The drivers' parallel loop: fn(i) for every i in [0, k), one index a
+    // task, returning when all are done (prepare_parallel(),
+    // run_parallel_node(), finish_parallel(); the benchmarks' too).
+    struct ForEach {
+        template <class Fn>
+        void operator()(uint32_t k, Fn&& fn) const {
+            tbb::parallel_for(tbb::blocked_range<uint32_t>(0, k, 1), [&](const tbb::blocked_range<uint32_t>& r) {
+                for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
+            });
+        }
+    };
+
     static void run(BuildState& st) {
         // Never more threads than the calling context allows (inside a user's
         // arena, its concurrency), so nothing is oversubscribed.
@@ -33,18 +45,13 @@ struct Tbb {
         st.stats.threads_used = threads;
         tbb::task_arena arena(static_cast<int>(threads));
         arena.execute([&] {
-            auto for_each = [](uint32_t k, auto&& fn) {
-                tbb::parallel_for(tbb::blocked_range<uint32_t>(0, k, 1), [&](const tbb::blocked_range<uint32_t>& r) {
-                    for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
-                });
-            };
-            sched::prepare_parallel(st, threads, for_each, slot);
+            sched::prepare_parallel(st, threads, ForEach{}, slot);
             // Slots are indexed by the arena's thread index, unique per thread.
             sched::Workers& workers = st.workers;
             sched::start_workers(st, workers, static_cast<uint32_t>(tbb::this_task_arena::max_concurrency()));
             Builder b{st.context(threads), st.n, threads, workers};
             b.task(st.root);
-            sched::finish_parallel(st, workers, for_each);
+            sched::finish_parallel(st, workers, ForEach{});
         });
     }
 
@@ -68,15 +75,8 @@ private:
             if (team) {
                 const TraceScope trace(ctx.trace, t, me().id, TraceSpan::Parallel);
                 ParallelNode pn(ctx, t, threads);
-                split = run_parallel_node(
-                    pn, children, me().skip,
-                    [](uint32_t k, auto&& fn) {
-                        tbb::parallel_for(tbb::blocked_range<uint32_t>(0, k, 1),
-                                          [&](const tbb::blocked_range<uint32_t>& r) {
-                                              for (uint32_t i = r.begin(); i != r.end(); ++i) fn(i);
-                                          });
-                    },
-                    [](auto&& fn) { fn(); }, ctx.trace, me().id);
+                split = run_parallel_node(pn, children, me().skip, ForEach{}, [](auto&& fn) { fn(); }, ctx.trace,
+                                          me().id);
                 me().out.records.push_back(NodeRecord::of(t, !split));
             } else {
                 split = sched::run_recorded(ctx, t, children, me());
