@@ -17,8 +17,10 @@
 // ratio was 1.21 to 1.22 for a while and then 3.32 to 3.40 (4 MiB: 41 us
 // against 116, the local pass 34 us throughout), in one run: the host moves
 // the two vCPUs between a placement where they share a cache and one where
-// they do not, for minutes at a time. canopy's 2-thread builds follow it
-// (README, "Where the performance targets stand").
+// they do not, for minutes at a time. canopy's 2-thread builds were
+// slower in its dear state on 2026-12-06, but over 40 probes of the dragon
+// on 2026-12-07 their fraction of the ideal speedup did not follow it
+// (correlation 0.07; docs/performance-log.md, "2026-12-07, early").
 #include "tools/cli.h"  // canopy::cli::median
 
 #include <atomic>

@@ -475,7 +475,8 @@ struct BinMapper {
 // processes and 41 to 50 in others, the extra samples all in the bin
 // updates. With the bins of a node together, 3 of 72 sets were slow (1.2
 // to 1.6 ms), and 1 of 10 dragon processes. Why pages differ was not
-// found: no hardware counters here. README, "Where the bins land".)
+// found: no hardware counters here. README, "Slow pages for the bins";
+// the measurements in docs/performance-log.md.)
 struct BinArrays {
     simd::MinBox* base = nullptr;  // (lo, -hi): see simd::MinBox
     uint32_t stride = 0;

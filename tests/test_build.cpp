@@ -879,7 +879,7 @@ TEST(BuildLayout, PlaceRecordsReproducesTheSequentialTree) {
 // for bit: random boxes over 80 orders of magnitude of size and position,
 // flat ones, points, and areas that underflow or saturate float. (A guard
 // for a faster area in prepare: one in AVX2 vectors made no measurable
-// difference and was not kept, see README.)
+// difference and was not kept, see docs/performance-log.md.)
 TEST(BuildPrepare, RecordAreasArePrimArea) {
     std::mt19937 rng(77);
     std::uniform_real_distribution<float> unit(-1.0f, 1.0f);
