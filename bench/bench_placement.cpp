@@ -98,9 +98,6 @@ inline uint32_t tbb_threads(const BuildState& st) {
     return threads <= 1 && !g_force_parallel ? 0 : threads;
 }
 
-// The library's parallel loop (Tbb::ForEach, schedulers/tbb.h).
-using TbbForEach = Tbb::ForEach;
-
 // What every driver below starts with: the sequential fallback (as Tbb),
 // then in a task arena of `threads` threads the parallel prepare and
 // body(threads).
@@ -115,7 +112,7 @@ void run_in_arena(BuildState& st, Body&& body) {
     st.allocate_records();
     tbb::task_arena arena(static_cast<int>(threads));
     arena.execute([&] {
-        sched::prepare_parallel(st, threads, TbbForEach{}, Tbb::slot);
+        sched::prepare_parallel(st, threads, Tbb::ForEach{}, Tbb::slot);
         body(threads);
     });
 }
@@ -163,13 +160,13 @@ struct TbbArith {
             allocate_nodes(st, total);
             const auto t1 = Clock::now();
             LeafRank rank(st.n);
-            TbbForEach{}(static_cast<uint32_t>(workers.size()), [&](uint32_t i) {
+            Tbb::ForEach{}(static_cast<uint32_t>(workers.size()), [&](uint32_t i) {
                 for (const NodeRecord& r : workers[i].records)
                     if (r.count) rank.mark(r.begin);
             });
             rank.finish();
             Node* nodes = st.bvh.nodes.data();
-            TbbForEach{}(static_cast<uint32_t>(workers.size()), [&](uint32_t i) {
+            Tbb::ForEach{}(static_cast<uint32_t>(workers.size()), [&](uint32_t i) {
                 for (const NodeRecord& r : workers[i].records) {
                     Node& n = nodes[canonical_slot(r, rank)];
                     n.set_box(r.box);
@@ -216,7 +213,7 @@ private:
             bool split;
             if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
                 ParallelNode pn(ctx, t, threads);
-                split = run_parallel_node(pn, children, me().skip, TbbForEach{}, [](auto&& fn) { fn(); }, nullptr, 0);
+                split = run_parallel_node(pn, children, me().skip, Tbb::ForEach{}, [](auto&& fn) { fn(); }, nullptr, 0);
                 me().records.push_back(NodeRecord::of(t, !split));
             } else {
                 split = run_recorded(t, children);
@@ -332,7 +329,7 @@ private:
             if (sched::team_parallel(t.size(), n, threads, ctx.options->tuning)) {
                 const TraceScope trace(ctx.trace, t, me().id, TraceSpan::Parallel);
                 ParallelNode pn(ctx, t, threads);
-                split = run_parallel_node(pn, children, me().skip, TbbForEach{}, [](auto&& fn) { fn(); }, ctx.trace,
+                split = run_parallel_node(pn, children, me().skip, Tbb::ForEach{}, [](auto&& fn) { fn(); }, ctx.trace,
                                           me().id);
             } else {
                 Worker& wk = me();
@@ -439,7 +436,7 @@ private:
             next += 2;
         }
 
-        TbbForEach{}(static_cast<uint32_t>(copies.size()), [&](uint32_t i) {
+        Tbb::ForEach{}(static_cast<uint32_t>(copies.size()), [&](uint32_t i) {
             const Copy& c = copies[i];
             const Node* src = workers[c.worker].nodes.data() + c.first;
             // Block-relative child index k lands at c.base + k - 1.
