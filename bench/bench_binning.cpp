@@ -1,5 +1,5 @@
 // canopy bench: the binning step alone (step 1 of the node kernel, bin() in
-// core/kernel.h), in nanoseconds per record, so that a change to the bin
+// core/kernel/bin.h), in nanoseconds per record, so that a change to the bin
 // updates can be judged without a whole build around it.
 //
 // Each case prepares the records of a generated scene once, then bins

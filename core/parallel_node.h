@@ -9,12 +9,12 @@
 //    neither how the range is cut into chunks nor which chunks share a bin
 //    set (see take_bins()) matters;
 //  - the partition swaps the same pairs as partition() (see mark_sides()
-//    in kernel.h): the chunks find their records' sides as bits, with their
+//    in kernel/team_partition.h): the chunks find their records' sides as bits, with their
 //    share of the child bounds (merged exactly too); one thread cuts the
 //    misplaced pairs into pieces by rank, and the pieces are swapped in
 //    parallel. Bin, mark and swap: the swap pass touches only the misplaced
 //    records. Teams of fewer than kTeamPartitionMin threads partition by
-//    halves instead (partition_half() in kernel.h): two threads each read
+//    halves instead (partition_half() in kernel/team_partition.h): two threads each read
 //    half of the records once, pairing misplaced records from either end
 //    of the rank order, and one pairs what the two left over.
 // A node that chooses its axis from a sample (samples_axis()) first bins
@@ -180,7 +180,7 @@ public:
     bool from_bins() const { return !split_.by_size() && t_.size() > kBinBlock; }
     const uint32_t* keys() const { return from_bins() ? ctx_.permutation : nullptr; }
     // Parallel over [0, 2), SAH splits of a small team: one half of the
-    // two-ended partition (kernel.h).
+    // two-ended partition (kernel/team_partition.h).
     void partition_half(uint32_t i) {
         chunk_[i] = i == 0 ? canopy::partition_half<0>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[0], keys())
                            : canopy::partition_half<1>(ctx_.refs, t_.begin, t_.end, m_, split_, halves_[1], keys());

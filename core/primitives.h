@@ -41,7 +41,7 @@ inline Vec3 centroid(const PrimRef& r) { return r.lo * 0.5f + r.hi * 0.5f + 0.0f
 // The area stored in a record: the box's half area, computed in double (no
 // overflow, no NaN) and rounded to float, saturated at the largest float, and
 // 0 below the smallest normal float (so it is never subnormal). Used to find
-// a node's large primitives (the size split in kernel.h) and for the SAH
+// a node's large primitives (the size split in kernel/size_split.h) and for the SAH
 // lower bound of small nodes (leaf_by_bound()).
 inline float prim_area(const Vec3& lo, const Vec3& hi) {
     const double dx = double(hi.x) - double(lo.x), dy = double(hi.y) - double(lo.y),

@@ -205,7 +205,7 @@ TriangleMesh generate_stadium(uint64_t count, uint64_t /*seed*/) {
 // triangles, a small light quad just below the ceiling, and a dense sphere of
 // radius 0.3 floating in the middle (count - 12 triangles, about). Twelve
 // primitives far larger than all the others, with centroids among theirs:
-// the case the size split is for (see SizeCuts in kernel.h).
+// the case the size split is for (see SizeCuts in kernel/size_split.h).
 TriangleMesh generate_room(uint64_t count, uint64_t /*seed*/) {
     TriangleMesh mesh;
     append_sphere(mesh, count > 12 ? count - 12 : 1, 0.3);

@@ -310,8 +310,8 @@ TEST(KernelBinMapper, MinInBinZeroMaxInLastBin) {
     EXPECT_EQ(bin_index(w, FLT_MAX, 0), 15u);
 }
 
-// Regression test for a fixed bug: kernel.h promises that with the safe scale
-// 0.99 * bins / extent "the largest centroid falls inside the last bin",
+// Regression test for a fixed bug: the kernel promised that with the safe
+// scale 0.99 * bins / extent "the largest centroid falls inside the last bin",
 // but that holds only while 0.01 * bins < 1. For bins >= 100 (the option
 // allows up to 256) the largest centroid lands in bin floor(0.99 * bins):
 // bin 253 of 256, so bins 254 and 255 are never used.

@@ -850,7 +850,7 @@ TEST(SweepSah, RootSplitIsNoWorseThanBinned) {
 
 // Large primitives around a detailed object (the Cornell box scenes): binning
 // alone cannot separate them (gen:room:20000 was 16.9% above the exact tree,
-// CBcoil 22%); with the size split (SizeCuts in core/kernel.h) both are at or
+// CBcoil 22%); with the size split (SizeCuts in core/kernel/size_split.h) both are at or
 // below it. The shared CBcoil is checked when present.
 TEST(SweepSah, RoomsStayNearTheExactTree) {
     std::vector<std::pair<std::string, TriangleMesh>> scenes;
@@ -869,7 +869,7 @@ TEST(SweepSah, RoomsStayNearTheExactTree) {
 }
 
 // A regression test: binned SAH quality once collapsed on tiny scenes.
-// BinMapper::make (core/kernel.h) computed the bin scale bins / extent in
+// BinMapper::make (core/kernel/bin_mapper.h) computed the bin scale bins / extent in
 // float; for a centroid extent below about bins / FLT_MAX (4.7e-38 at 16
 // bins) it overflowed, the axis was skipped, and a node with no valid axis
 // was counted as coincident and split in the middle: valid trees, but at

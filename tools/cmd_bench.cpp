@@ -233,7 +233,7 @@ private:
     // process-wide). Making one is not timed, and is followed by a longer
     // idle (kDeviceSettleMs) so that the threads it starts are asleep before
     // the next timed build.
-    static constexpr int kDeviceSettleMs = 250;
+    [[maybe_unused]] static constexpr int kDeviceSettleMs = 250;  // used with Embree only
     void use_threads(uint32_t T) {
         options_.threads = T;
 #if CANOPY_HAVE_EMBREE
