@@ -9,6 +9,7 @@
 
 #include "error.h"
 #include "file_read.h"
+#include "reader_util.h"
 
 #include <bit>
 #include <cerrno>
@@ -102,13 +103,7 @@ struct Header {
     size_t lines = 0;        // header lines, end_header included
 };
 
-std::string quote(std::string_view s) {
-    constexpr size_t kMax = 40;
-    std::string q = "'";
-    for (char c : s.substr(0, kMax)) q += (c >= 0x20 && c < 0x7f) ? c : '?';
-    if (s.size() > kMax) q += "...";
-    return q + "'";
-}
+using input::quote;
 
 bool is_space(char c) { return c == ' ' || c == '\t' || c == '\v' || c == '\f' || c == '\r'; }
 

@@ -9,7 +9,7 @@ namespace canopy {
 // Uniform doubles in [0, 1) from std::mt19937_64, whose output sequence the
 // standard fixes, mapped by hand: the top 53 bits of one 64-bit draw
 // (std::uniform_real_distribution differs between standard libraries). The
-// generated scenes (core/scene.cpp), the sweep's ray set (`canopy sweep`)
+// generated scenes (core/generators.cpp), the sweep's ray set (`canopy sweep`)
 // and the stress tests draw from it, so that a seed means the same scene
 // and the same rays on every platform.
 class Rng {
