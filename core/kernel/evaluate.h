@@ -11,7 +11,7 @@
 
 namespace canopy {
 
-// The best split found by evaluate() (or by the size split, see below).
+// The best split found by evaluate() (or by the size split, size_split.h).
 struct Split {
     static constexpr int kSizeAxis = 3;  // a size split, not a plane
     int axis = -1;        // -1: no split exists

@@ -223,7 +223,7 @@ inline bool goes_left(const PrimRef& r, const BinMapper& m, const Split& s) {
 // The result depends only on which side each record goes to, not on the
 // order in which the sides are found, so a team-parallel node reproduces it
 // bit for bit from side bits found by chunks (see mark_sides() and
-// swap_misplaced() below).
+// swap_misplaced() in team_partition.h).
 //
 // In place, the records need one buffer: until 2026-12-02 the partition was
 // the stable one, written to a second buffer of the same size (32 more bytes

@@ -12,10 +12,11 @@
 namespace canopy {
 
 // Small nodes are split exactly. A node of at most kExactMaxPrims
-// primitives that got past the bound above is not binned: every partition of
-// its records into two non-empty sets is costed with the SAH, with the same
-// measure as the bins' sweeps (simd::Measure, in the same float operations),
-// and the cheapest wins. The planes between bins realise only some of those
+// primitives that got past the SAH lower bound (leaf_by_bound() in
+// kernel.h) is not binned: every partition of its records into two
+// non-empty sets is costed with the SAH, with the same measure as the bins'
+// sweeps (simd::Measure, in the same float operations), and the cheapest
+// wins. The planes between bins realise only some of those
 // partitions, and the others are often cheaper (two walls and two small
 // objects between them: no plane puts the walls together); the cost of a
 // partition the bins also see is bit for bit the one evaluate() computes, so
