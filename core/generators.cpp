@@ -10,7 +10,6 @@
 #include "rng.h"
 
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <numbers>
 #include <string_view>
