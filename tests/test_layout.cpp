@@ -56,23 +56,9 @@ using canopy::Vec3;
 namespace {
 
 using canopy::test_util::coincident_mesh;
+using canopy::test_util::geometric_mesh;
 using canopy::test_util::grid_mesh;
 using canopy::test_util::random_mesh;
-
-// Triangles in the planes x = 2^-k, k = 0..kmax: with bins over [2^-kmax, 1]
-// nearly everything falls in bin 0, so every SAH split peels off only the
-// few largest: without a depth cap the tree is about as deep as it has
-// triangles.
-TriangleMesh geometric_mesh(int kmax) {
-    TriangleMesh m;
-    for (int k = 0; k <= kmax; ++k) {
-        const float x = std::ldexp(1.0f, -k);
-        const uint32_t base = uint32_t(m.vertices.size());
-        m.vertices.insert(m.vertices.end(), {Vec3(x, 0, 0), Vec3(x, 1, 0), Vec3(x, 0, 1)});
-        m.indices.insert(m.indices.end(), {base, base + 1, base + 2});
-    }
-    return m;
-}
 
 Bvh build(const TriangleMesh& m, const BuildOptions& opt = {}, BuildStats* stats = nullptr) {
     return canopy::build<Sequential>(m.view(), opt, stats);

@@ -12,6 +12,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -57,6 +58,21 @@ inline TriangleMesh grid_mesh(uint32_t k) {
             m.indices.insert(m.indices.end(), {v(x, y), v(x + 1, y), v(x + 1, y + 1)});
             m.indices.insert(m.indices.end(), {v(x, y), v(x + 1, y + 1), v(x, y + 1)});
         }
+    return m;
+}
+
+// Triangles in the planes x = 2^-k, k = 0..kmax: with bins over [2^-kmax, 1]
+// nearly everything falls in bin 0, so every SAH split peels off only the
+// few largest: without a depth cap the tree is about as deep as it has
+// triangles.
+inline TriangleMesh geometric_mesh(int kmax) {
+    TriangleMesh m;
+    for (int k = 0; k <= kmax; ++k) {
+        const float x = std::ldexp(1.0f, -k);
+        const uint32_t base = uint32_t(m.vertices.size());
+        m.vertices.insert(m.vertices.end(), {Vec3(x, 0, 0), Vec3(x, 1, 0), Vec3(x, 0, 1)});
+        m.indices.insert(m.indices.end(), {base, base + 1, base + 2});
+    }
     return m;
 }
 
