@@ -107,16 +107,8 @@ using input::quote;
 
 bool is_space(char c) { return c == ' ' || c == '\t' || c == '\v' || c == '\f' || c == '\r'; }
 
-void split(std::string_view line, std::vector<std::string_view>& out) {
-    out.clear();
-    size_t i = 0;
-    while (i < line.size()) {
-        while (i < line.size() && is_space(line[i])) ++i;
-        const size_t start = i;
-        while (i < line.size() && !is_space(line[i])) ++i;
-        if (i > start) out.push_back(line.substr(start, i - start));
-    }
-}
+// A header line's tokens (separated by any ASCII white space but newline).
+void split(std::string_view line, std::vector<std::string_view>& out) { input::split_tokens(line, out, is_space); }
 
 bool parse_count(std::string_view s, uint64_t& out) {
     if (s.empty() || s[0] < '0' || s[0] > '9') return false;

@@ -27,16 +27,7 @@ std::string format_vec(const Vec3& p) {
     return s.append(")");
 }
 
-void split_tokens(std::string_view line, std::vector<std::string_view>& out) {
-    out.clear();
-    size_t i = 0;
-    while (i < line.size()) {
-        while (i < line.size() && is_blank(line[i])) ++i;
-        const size_t start = i;
-        while (i < line.size() && !is_blank(line[i])) ++i;
-        if (i > start) out.push_back(line.substr(start, i - start));
-    }
-}
+void split_tokens(std::string_view line, std::vector<std::string_view>& out) { split_tokens(line, out, is_blank); }
 
 std::string quote(std::string_view token) {
     constexpr size_t kMax = 40;

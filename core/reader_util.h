@@ -29,8 +29,21 @@ inline void push_triangle(TriangleMesh& mesh, uint64_t a, uint64_t b, uint64_t c
     mesh.indices.push_back(static_cast<uint32_t>(c));
 }
 
-// Splits a line into tokens separated by spaces and tabs (as tinyobjloader
-// does), into `out` (cleared first).
+// Splits a line into the tokens between characters c with is_sep(c), into
+// `out` (cleared first).
+template <class IsSep>
+void split_tokens(std::string_view line, std::vector<std::string_view>& out, IsSep is_sep) {
+    out.clear();
+    size_t i = 0;
+    while (i < line.size()) {
+        while (i < line.size() && is_sep(line[i])) ++i;
+        const size_t start = i;
+        while (i < line.size() && !is_sep(line[i])) ++i;
+        if (i > start) out.push_back(line.substr(start, i - start));
+    }
+}
+
+// Tokens separated by spaces and tabs (as tinyobjloader splits them).
 void split_tokens(std::string_view line, std::vector<std::string_view>& out);
 
 // A token for an error message: in single quotes, at most 40 characters
