@@ -121,13 +121,18 @@ TriangleMesh load_off(const std::string& path) {
     TriangleMesh mesh;
     mesh.vertices.reserve(static_cast<size_t>(vertex_count));
     mesh.indices.reserve(3 * static_cast<size_t>(face_count));
+    // The tokens of element `name`'s line (one of `count`), or an error if
+    // the file ends before it.
+    const auto element_tokens = [&](const std::string& name, uint64_t count) {
+        if (!next_line(line))
+            throw InputError(path + ": file ends after line " + std::to_string(line_no) + ", before " + name + " (of " +
+                             std::to_string(count) + "): truncated, or the header's counts are wrong");
+        split_tokens(line.text, tokens);
+    };
     const size_t need = homogeneous ? 4 : 3;
     for (uint64_t v = 0; v < vertex_count; ++v) {
         const std::string name = "vertex " + std::to_string(v);
-        if (!next_line(line))
-            throw InputError(path + ": file ends after line " + std::to_string(line_no) + ", before " + name + " (of " +
-                             std::to_string(vertex_count) + "): truncated, or the header's counts are wrong");
-        split_tokens(line.text, tokens);
+        element_tokens(name, vertex_count);
         if (tokens.size() < need)
             fail(line.number, name + " has " + std::to_string(tokens.size()) + " coordinates (needs " +
                                   (homogeneous ? "x y z w)" : "x y z)"));
@@ -143,10 +148,7 @@ TriangleMesh load_off(const std::string& path) {
     }
     for (uint64_t f = 0; f < face_count; ++f) {
         const std::string name = "face " + std::to_string(f);
-        if (!next_line(line))
-            throw InputError(path + ": file ends after line " + std::to_string(line_no) + ", before " + name + " (of " +
-                             std::to_string(face_count) + "): truncated, or the header's counts are wrong");
-        split_tokens(line.text, tokens);
+        element_tokens(name, face_count);
         uint64_t n = 0;
         if (!parse_u64(tokens[0], n)) fail(line.number, name + ": vertex count " + quote(tokens[0]) + " is not a number");
         if (n < 3) fail(line.number, name + " has " + std::to_string(n) + " vertices (needs at least 3)");
