@@ -121,53 +121,53 @@ TriangleMesh load_off(const std::string& path) {
     TriangleMesh mesh;
     mesh.vertices.reserve(static_cast<size_t>(vertex_count));
     mesh.indices.reserve(3 * static_cast<size_t>(face_count));
-    // The tokens of element `name`'s line (one of `count`), or an error if
-    // the file ends before it.
-    const auto element_tokens = [&](const std::string& name, uint64_t count) {
+    // The tokens of the line of element `index` (of `count`) of a `kind`, or
+    // an error if the file ends before it. Element names ("vertex 12") are
+    // formatted only for an error.
+    const auto element_tokens = [&](const char* kind, uint64_t index, uint64_t count) {
         if (!next_line(line))
-            throw InputError(path + ": file ends after line " + std::to_string(line_no) + ", before " + name + " (of " +
-                             std::to_string(count) + "): truncated, or the header's counts are wrong");
+            throw InputError(path + ": file ends after line " + std::to_string(line_no) + ", before " + kind + " " +
+                             std::to_string(index) + " (of " + std::to_string(count) +
+                             "): truncated, or the header's counts are wrong");
         split_tokens(line.text, tokens);
     };
     const size_t need = homogeneous ? 4 : 3;
     for (uint64_t v = 0; v < vertex_count; ++v) {
-        const std::string name = "vertex " + std::to_string(v);
-        element_tokens(name, vertex_count);
+        element_tokens("vertex", v, vertex_count);
+        const auto bad = [&](const std::string& what) { fail(line.number, "vertex " + std::to_string(v) + what); };
         if (tokens.size() < need)
-            fail(line.number, name + " has " + std::to_string(tokens.size()) + " coordinates (needs " +
-                                  (homogeneous ? "x y z w)" : "x y z)"));
+            bad(" has " + std::to_string(tokens.size()) + " coordinates (needs " +
+                (homogeneous ? "x y z w)" : "x y z)"));
         float xyzw[4] = {0.0f, 0.0f, 0.0f, 1.0f};
         for (size_t k = 0; k < need; ++k) {
-            if (!parse_coordinate(tokens[k], xyzw[k]))
-                fail(line.number, name + ": coordinate " + quote(tokens[k]) + " is not a number");
+            if (!parse_coordinate(tokens[k], xyzw[k])) bad(": coordinate " + quote(tokens[k]) + " is not a number");
         }
         Vec3 p(xyzw[0], xyzw[1], xyzw[2]);
         if (homogeneous) p = make_vec(double(p.x) / xyzw[3], double(p.y) / xyzw[3], double(p.z) / xyzw[3]);
-        if (!is_finite(p)) fail(line.number, name + " has a non-finite coordinate " + format_vec(p));
+        if (!is_finite(p)) bad(" has a non-finite coordinate " + format_vec(p));
         mesh.vertices.push_back(p);
     }
     for (uint64_t f = 0; f < face_count; ++f) {
-        const std::string name = "face " + std::to_string(f);
-        element_tokens(name, face_count);
+        element_tokens("face", f, face_count);
+        const auto bad = [&](const std::string& what) { fail(line.number, "face " + std::to_string(f) + what); };
         uint64_t n = 0;
-        if (!parse_u64(tokens[0], n)) fail(line.number, name + ": vertex count " + quote(tokens[0]) + " is not a number");
-        if (n < 3) fail(line.number, name + " has " + std::to_string(n) + " vertices (needs at least 3)");
+        if (!parse_u64(tokens[0], n)) bad(": vertex count " + quote(tokens[0]) + " is not a number");
+        if (n < 3) bad(" has " + std::to_string(n) + " vertices (needs at least 3)");
         if (tokens.size() - 1 < n)
-            fail(line.number, name + " has " + std::to_string(tokens.size() - 1) + " indices, its count says " +
-                                  std::to_string(n));
+            bad(" has " + std::to_string(tokens.size() - 1) + " indices, its count says " + std::to_string(n));
         uint32_t corner[3] = {0, 0, 0};
         for (uint64_t k = 0; k < n; ++k) {
             const std::string_view token = tokens[1 + k];
             uint64_t index = 0;
             if (!parse_u64(token, index)) {
                 if (token.starts_with('-') && token.size() > 1 && parse_u64(token.substr(1), index))
-                    fail(line.number, name + ": vertex index " + std::string(token) + " out of range (" +
-                                          std::to_string(vertex_count) + " vertices)");
-                fail(line.number, name + ": vertex index " + quote(token) + " is not an integer");
+                    bad(": vertex index " + std::string(token) + " out of range (" + std::to_string(vertex_count) +
+                        " vertices)");
+                bad(": vertex index " + quote(token) + " is not an integer");
             }
             if (index >= vertex_count)
-                fail(line.number, name + ": vertex index " + std::to_string(index) + " out of range (" +
-                                      std::to_string(vertex_count) + " vertices)");
+                bad(": vertex index " + std::to_string(index) + " out of range (" + std::to_string(vertex_count) +
+                    " vertices)");
             if (k == 0) corner[0] = static_cast<uint32_t>(index);
             corner[2] = static_cast<uint32_t>(index);
             if (k >= 2) push_triangle(mesh, corner[0], corner[1], corner[2]);
