@@ -96,38 +96,34 @@ ObjScan scan_obj(const std::string& path, const std::string& text) {
 
         if (keyword == "v") {
             const size_t vertex = scan.vertex_lines.size() + 1;  // 1-based, as in OBJ
-            const std::string name = "vertex " + std::to_string(vertex);
-            if (tokens.size() < 4)
-                obj_error(path, line_no,
-                          name + " has " + std::to_string(tokens.size() - 1) + " coordinates (needs x y z)");
+            const auto bad = [&](const std::string& what) {
+                obj_error(path, line_no, "vertex " + std::to_string(vertex) + what);
+            };
+            if (tokens.size() < 4) bad(" has " + std::to_string(tokens.size() - 1) + " coordinates (needs x y z)");
             float xyz[3];
             for (int k = 0; k < 3; ++k) {
                 if (!parse_coordinate(tokens[1 + k], xyz[k]))
-                    obj_error(path, line_no, name + ": coordinate " + quote(tokens[1 + k]) + " is not a number");
+                    bad(": coordinate " + quote(tokens[1 + k]) + " is not a number");
             }
             const Vec3 p(xyz[0], xyz[1], xyz[2]);
-            if (!is_finite(p))
-                obj_error(path, line_no, name + " has a non-finite coordinate " + format_vec(p));
+            if (!is_finite(p)) bad(" has a non-finite coordinate " + format_vec(p));
             scan.vertex_lines.push_back(line_no);
         } else if (keyword == "f") {
             ++scan.faces;
-            const std::string name = "face " + std::to_string(scan.faces);
+            const auto bad = [&](const std::string& what) {
+                obj_error(path, line_no, "face " + std::to_string(scan.faces) + what);
+            };
             const size_t corners = tokens.size() - 1;
-            if (corners < 3)
-                obj_error(path, line_no,
-                          name + " has " + std::to_string(corners) + " vertices (needs at least 3)");
+            if (corners < 3) bad(" has " + std::to_string(corners) + " vertices (needs at least 3)");
             const long long defined = static_cast<long long>(scan.vertex_lines.size());
             long long max_forward = 0;
             for (size_t k = 1; k < tokens.size(); ++k) {
                 long long index = 0;
-                if (!parse_corner(tokens[k], index))
-                    obj_error(path, line_no, name + ": malformed vertex reference " + quote(tokens[k]));
-                if (index == 0)
-                    obj_error(path, line_no, name + ": vertex index 0 (OBJ indices start at 1)");
+                if (!parse_corner(tokens[k], index)) bad(": malformed vertex reference " + quote(tokens[k]));
+                if (index == 0) bad(": vertex index 0 (OBJ indices start at 1)");
                 if (index < 0 && defined + index < 0)
-                    obj_error(path, line_no,
-                              name + ": relative vertex index " + std::to_string(index) + " out of range (" +
-                                  std::to_string(defined) + " vertices defined before this line)");
+                    bad(": relative vertex index " + std::to_string(index) + " out of range (" +
+                        std::to_string(defined) + " vertices defined before this line)");
                 if (index > defined) max_forward = std::max(max_forward, index);
             }
             if (max_forward > 0) forward_refs.push_back({line_no, scan.faces, max_forward});
