@@ -1,8 +1,9 @@
 #!/bin/sh
-# Installs canopy from the build directory into a temporary root and builds a
-# tiny consumer against the canopy.pc found there.
+# Installs canopy from the build directory into a temporary root, builds a
+# tiny consumer against the canopy.pc found there, with -O2 as users do, and
+# checks that its tree is the one the canopy tool ($3) builds.
 set -eu
-build="$1"; src="$2"
+build="$1"; src="$2"; tool="$3"
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 meson install -C "$build" --destdir "$tmp" --no-rebuild --quiet >/dev/null
@@ -13,5 +14,10 @@ export PKG_CONFIG_SYSROOT_DIR="$tmp"
 flags=$(pkg-config --cflags --libs canopy)
 # CONSUMER_FLAGS: e.g. -fsanitize=address,undefined when the installed
 # library was built with them.
-c++ -std=c++20 -O1 ${CONSUMER_FLAGS:-} "$src/consumer.cpp" -o "$tmp/consumer" $flags
-"$tmp/consumer"
+c++ -std=c++20 -O2 ${CONSUMER_FLAGS:-} "$src/consumer.cpp" -o "$tmp/consumer" $flags
+"$tmp/consumer" > "$tmp/out"
+cat "$tmp/out"
+mine=$(sed -n 's/^tree_hash //p' "$tmp/out")
+theirs=$("$tool" build gen:sphere:20000:1 --json | sed -n 's/.*"tree_hash" *: *"\([0-9a-f]*\)".*/\1/p')
+echo "canopy build: tree_hash $theirs"
+[ -n "$mine" ] && [ "$mine" = "$theirs" ] || { echo "the consumer's tree differs from the canopy tool's" >&2; exit 1; }
