@@ -14,7 +14,8 @@
 // shrinks the surface area of the child whose children changed the most is
 // done (the SAH changes only by that area: every other node keeps its box
 // and primitives). It prints the SAH (core/sah.h's formula) after each
-// pass, the rotations done and the pass's time.
+// pass, the rotations done, the pass's time, and how many records a build
+// would move to take them (the swapped subtrees' primitives).
 //
 // The rotated tree is a valid BVH (checked here: every box holds its
 // children's, the leaves keep their primitives) but not in the canonical
@@ -51,19 +52,26 @@ struct Rotator {
     std::vector<uint32_t> prims;  // primitives below each node
     uint32_t min_prims;
     bool pre_order;
+    // Records a build would move to take the rotations. A node's children
+    // hold their subtrees in record order here (the left child's records
+    // first), as in a build. A rotation regroups three subtrees T0 T1 T2
+    // (in record order): when the one left alone is T0 or T2 it is only a
+    // regrouping ((T0 T1) T2 <-> T0 (T1 T2)) and moves nothing; when it is
+    // T1, two adjacent ranges trade places, the cheaper pair.
+    uint64_t moved = 0;
 
     uint32_t count(uint32_t i) {
         const Node& n = nodes[i];
         return prims[i] = n.is_leaf() ? n.count : count(n.index) + count(n.index + 1);
     }
 
-    // The best rotation at inner node i, if one lowers the area: swaps the
-    // child at slot `a` with the grandchild at slot `g`, whose parent is the
-    // child at slot `p`.
+    // The best rotation at inner node i, if one lowers the area: the child
+    // at slot `a` trades places with the grandchild at slot `g`, whose
+    // parent is the child at slot `p`.
     bool rotate(uint32_t i) {
         const uint32_t first = nodes[i].index;
         float best = 0.0f;
-        uint32_t best_a = 0, best_g = 0, best_p = 0;
+        uint32_t best_g = 0, best_p = 0;
         for (uint32_t side = 0; side < 2; ++side) {
             const uint32_t a = first + side, p = first + 1 - side;
             if (nodes[p].is_leaf()) continue;
@@ -71,15 +79,42 @@ struct Rotator {
             for (uint32_t k = 0; k < 2; ++k) {
                 const uint32_t g = nodes[p].index + k, keep = nodes[p].index + 1 - k;
                 const float gain = now - half_area(join(nodes[keep].box(), nodes[a].box()));
-                if (gain > best) best = gain, best_a = a, best_g = g, best_p = p;
+                if (gain > best) best = gain, best_g = g, best_p = p;
             }
         }
         if (best <= 0.0f) return false;
-        std::swap(nodes[best_a], nodes[best_g]);
-        std::swap(prims[best_a], prims[best_g]);
-        Node& p = nodes[best_p];
-        p.set_box(join(nodes[p.index].box(), nodes[p.index + 1].box()));
-        prims[best_p] = prims[p.index] + prims[p.index + 1];
+        // The three subtrees in record order, their slots, and which one
+        // ends up alone (the grandchild).
+        const uint32_t pair = nodes[best_p].index;
+        const uint32_t slot[3] = {best_p == first ? pair : first, best_p == first ? pair + 1 : pair,
+                                  best_p == first ? first + 1 : pair + 1};
+        const Node inner = nodes[best_p];
+        Node t[3];
+        uint32_t n[3];
+        for (int k = 0; k < 3; ++k) t[k] = nodes[slot[k]], n[k] = prims[slot[k]];
+        const int alone = best_g == slot[0] ? 0 : best_g == slot[1] ? 1 : 2;
+        int order[3] = {0, 1, 2};
+        bool left_grouped = alone == 2;
+        if (alone == 1) {
+            if (n[1] + n[2] <= n[0] + n[1]) {  // T0 T2 T1: ((T0 T2) T1)
+                order[1] = 2, order[2] = 1, left_grouped = true;
+                moved += uint64_t(n[1]) + n[2];
+            } else {  // T1 T0 T2: (T1 (T0 T2))
+                order[0] = 1, order[1] = 0, left_grouped = false;
+                moved += uint64_t(n[0]) + n[1];
+            }
+        }
+        // The new inner node takes the old one's child-pair slots.
+        const int x0 = left_grouped ? order[0] : order[1], x1 = left_grouped ? order[1] : order[2];
+        const int single = left_grouped ? order[2] : order[0];
+        Node x = inner;
+        x.set_box(join(t[x0].box(), t[x1].box()));
+        nodes[pair] = t[x0], prims[pair] = n[x0];
+        nodes[pair + 1] = t[x1], prims[pair + 1] = n[x1];
+        const uint32_t x_slot = left_grouped ? first : first + 1;
+        nodes[x_slot] = x, prims[x_slot] = n[x0] + n[x1];
+        nodes[left_grouped ? first + 1 : first] = t[single];
+        prims[left_grouped ? first + 1 : first] = n[single];
         return true;
     }
 
@@ -143,7 +178,7 @@ int main(int argc, char** argv) {
             for (const bool pre_order : {false, true}) {
                 for (const uint32_t min_prims : mins) {
                     Bvh bvh = built;
-                    Rotator r{bvh.nodes, std::vector<uint32_t>(bvh.nodes.size()), min_prims, pre_order};
+                    Rotator r{bvh.nodes, std::vector<uint32_t>(bvh.nodes.size()), min_prims, pre_order, 0};
                     r.count(0);
                     for (unsigned p = 1; p <= passes; ++p) {
                         const auto t0 = std::chrono::steady_clock::now();
@@ -151,9 +186,11 @@ int main(int argc, char** argv) {
                         const double ms =
                             std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
                         const double now = sah_cost(bvh);
-                        std::printf("  %s, nodes of %u+ primitives, pass %u: %zu rotations (%.2f ms), SAH %.4f (%+.2f%%)\n",
-                                    pre_order ? "pre-order" : "post-order", min_prims, p, done, ms, now,
-                                    100.0 * (now / sah - 1.0));
+                        std::printf(
+                            "  %s, nodes of %u+ primitives, pass %u: %zu rotations (%.2f ms), SAH %.4f (%+.2f%%), "
+                            "%.3f records moved per triangle so far\n",
+                            pre_order ? "pre-order" : "post-order", min_prims, p, done, ms, now,
+                            100.0 * (now / sah - 1.0), double(r.moved) / double(mesh.triangle_count()));
                     }
                     if (!still_valid(bvh)) {
                         std::fprintf(stderr, "rotations: the rotated tree of %s is not a valid BVH\n", spec.c_str());
