@@ -60,10 +60,11 @@ struct BuildState {
     NodeTask root;
     BuildStats stats;
     TraceLog* trace = nullptr;  // optional
+    CarriedSplits carried;      // splits chosen for tasks not yet run (kernel/rotate.h)
 
     // `threads`: how many work on the records (KernelContext::shared).
     KernelContext context(uint32_t threads = 1) {
-        return {records, bvh.permutation.data(), &options, trace, threads > 1};
+        return {records, bvh.permutation.data(), &options, trace, threads > 1, &carried};
     }
 
     // The records in an array of their own: the sequential layout, whose
@@ -112,6 +113,7 @@ struct BuildState {
             if (mesh) throw_bad_triangle(*mesh, s.first_bad);
             throw_bad_box(boxes, s.first_bad);
         }
+        carried.clear();
         root = NodeTask{};
         root.begin = 0;
         root.end = n;

@@ -135,6 +135,7 @@ inline BinMapper binning_mapper(const PrimRef* refs, const NodeTask& t, const Bi
 }
 
 class TraceLog;
+class CarriedSplits;
 
 // Everything a node task needs besides its own range.
 struct KernelContext {
@@ -145,12 +146,58 @@ struct KernelContext {
     // Other threads work on the records too: a big node's lines may be in
     // other cores' caches (see prefetch_for_write()). Speed only.
     bool shared = false;
+    // The splits chosen for tasks before they run (kernel/rotate.h); null:
+    // no rotations.
+    CarriedSplits* carry = nullptr;
 };
 
 // Writes a leaf's primitive ids to the permutation.
 inline void write_leaf(const KernelContext& ctx, const NodeTask& t) {
     for (uint32_t i = t.begin; i < t.end; ++i) ctx.permutation[i] = ctx.refs[i].id;
 }
+
+// Steps 1 and 2 for a node that is binned (more than kExactMaxPrims
+// primitives whose centroids are not all equal; `full` is its mapping on
+// every valid axis): sets `m` to the mapping it is binned with (one axis,
+// chosen from a sample, for big nodes: binning_mapper()) and returns its
+// cheapest split, by a plane or by size. A node of more than kBinBlock
+// primitives, which is partitioned by its keys, leaves them in the
+// permutation's slots of its range, which only its leaves write, later.
+inline Split bin_and_evaluate(const KernelContext& ctx, const NodeTask& t, const BinMapper& full, BinMapper& m,
+                              BinSet& bins, SkipCounts& skip) {
+    const BuildOptions& opt = *ctx.options;
+    assert(full.bins <= bins.max_bins());
+    m = binning_mapper(ctx.refs, t, full, bins, opt, skip);
+    uint32_t* const keys = t.size() > kBinBlock ? ctx.permutation : nullptr;
+    Split s;
+#if CANOPY_REGISTER_BINS
+    if (m.bins == 4 && !m.prescaled && t.size() <= kBinBlock) {
+        s = bin_evaluate_4(ctx.refs, t.begin, t.end, m, bins, t.bounds, opt);
+    } else
+#endif
+    {
+        bins.clear(m.bins);
+        bin(ctx.refs, t.begin, t.end, m, bins, keys);
+        s = evaluate(bins, m, t.bounds, opt);
+    }
+    if (t.size() >= kSizeSplitMinPrims) {
+        const SizeCuts cuts = SizeCuts::of(t.bounds);
+        if (cuts.applies(t)) {
+            SizeBins sizes;
+            bin_sizes(ctx.refs, t.begin, t.end, cuts, sizes);
+            consider_size_split(sizes, cuts, t.bounds, opt, s);
+            skip.size_splits += s.by_size();
+        }
+    }
+    return s;
+}
+
+}  // namespace canopy
+
+// Rotations, which choose children's splits with the steps above.
+#include "kernel/rotate.h"
+
+namespace canopy {
 
 // The whole node task, sequentially: returns false for a leaf (whose ids it
 // wrote to the permutation), true when it wrote two child tasks to
@@ -164,6 +211,8 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     // on the copy; about a tenth of run_node()'s own samples).
     const auto split = [&](const PartitionResult& part) {
         emit(t, part, children);
+        if (rotates(ctx, t)) [[unlikely]]
+            rotate_children(ctx, t, children, bins, skip);
         return true;
     };
     const BuildOptions& opt = *ctx.options;
@@ -172,6 +221,11 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     if (p != Plan::Sah) {
         write_leaf(ctx, t);
         return false;
+    }
+    if (t.carried) [[unlikely]] {
+        split_as_chosen(ctx, t, ctx.carry->take(t), children);
+        if (rotates(ctx, t)) rotate_children(ctx, t, children, bins, skip);
+        return true;
     }
     if (t.size() <= opt.max_leaf && leaf_by_bound(ctx.refs, t, opt)) {
         ++skip.bound_leaves;
@@ -200,32 +254,8 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
         return split(middle_split(ctx.refs, t.begin, t.end));
     }
     skip.axes_not_binned += 3 - full.valid_count();
-    assert(full.bins <= bins.max_bins());
-    const BinMapper m = binning_mapper(ctx.refs, t, full, bins, opt, skip);
-    // Nodes partitioned by their keys (larger than kBinBlock) get them in
-    // the permutation's slots of their range, which only their leaves
-    // write, later.
-    uint32_t* const keys = t.size() > kBinBlock ? ctx.permutation : nullptr;
-    Split s;
-#if CANOPY_REGISTER_BINS
-    if (m.bins == 4 && !m.prescaled && t.size() <= kBinBlock) {
-        s = bin_evaluate_4(ctx.refs, t.begin, t.end, m, bins, t.bounds, opt);
-    } else
-#endif
-    {
-        bins.clear(m.bins);
-        bin(ctx.refs, t.begin, t.end, m, bins, keys);
-        s = evaluate(bins, m, t.bounds, opt);
-    }
-    if (t.size() >= kSizeSplitMinPrims) {
-        const SizeCuts cuts = SizeCuts::of(t.bounds);
-        if (cuts.applies(t)) {
-            SizeBins sizes;
-            bin_sizes(ctx.refs, t.begin, t.end, cuts, sizes);
-            consider_size_split(sizes, cuts, t.bounds, opt, s);
-            skip.size_splits += s.by_size();
-        }
-    }
+    BinMapper m;
+    const Split s = bin_and_evaluate(ctx, t, full, m, bins, skip);
     if (sah_says_leaf(s, t.size(), opt)) {
         write_leaf(ctx, t);
         return false;
@@ -233,7 +263,7 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     if (!s.found()) return split(middle_split(ctx.refs, t.begin, t.end));
     if (s.by_size()) return split(partition(ctx.refs, t.begin, t.end, m, s));
     if (t.size() <= kBinBlock) return split(partition_binned(ctx.refs, t.begin, t.end, s, bins));
-    PartitionResult part = partition_by_keys(ctx.refs, t.begin, t.end, s, keys, ctx.shared);
+    PartitionResult part = partition_by_keys(ctx.refs, t.begin, t.end, s, ctx.permutation, ctx.shared);
     bounds_from_bins(bins, m, t, s, part);
     return split(part);
 }

@@ -21,6 +21,9 @@ void BuildOptions::check() const {
     if (max_depth < 1 || max_depth > kMaxDepthCap)
         throw OptionError("max_depth must be between 1 and " + std::to_string(kMaxDepthCap) + ", got " +
                           std::to_string(max_depth));
+    if (rotate_min != 0 && rotate_min < kRotateMinPrims)
+        throw OptionError("rotate_min must be 0 (no rotations) or at least " + std::to_string(kRotateMinPrims) +
+                          ", got " + std::to_string(rotate_min));
     if (threads > 4096) throw OptionError("threads must be at most 4096, got " + std::to_string(threads));
 }
 

@@ -14,6 +14,9 @@ inline constexpr uint32_t kMaxLeafSize = 255;
 // Primitive ids are uint32; one value is kept free so counts fit as well.
 inline constexpr uint64_t kMaxPrimitives = 0xFFFFFFFEull;
 inline constexpr uint32_t kMaxDepthCap = 255;
+// The smallest nonzero BuildOptions::rotate_min (below it a rotation's
+// bookkeeping costs more than it can gain).
+inline constexpr uint32_t kRotateMinPrims = 256;
 
 // Knobs of the parallel schedulers. They change speed, never the tree: the
 // equivalence tests turn them down to drive every code path on small scenes.
@@ -38,6 +41,10 @@ struct BuildOptions {
     // its remaining budget max_depth - depth is no more than
     // ceil(log2(primitive count)), so no leaf is deeper than max_depth.
     uint32_t max_depth = 64;
+    // Nodes of at least this many primitives look at their children's
+    // splits and take a local tree rotation where it lowers the SAH enough
+    // (core/kernel/rotate.h); 0: none. At least kRotateMinPrims otherwise.
+    uint32_t rotate_min = 65536;
     // Thread upper bound for parallel schedulers (0 = all hardware threads).
     uint32_t threads = 0;
     SchedulerTuning tuning;

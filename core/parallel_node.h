@@ -85,7 +85,21 @@ private:
     bool start_impl(SkipCounts& skip) {
         plan_ = plan(t_, *ctx_.options, skip);
         if (plan_ == Plan::Leaf) return false;
-        if (plan_ == Plan::Sah) {
+        if (plan_ == Plan::Sah && t_.carried) {
+            // Chosen before (kernel/rotate.h): nothing to bin; a range is
+            // not even partitioned.
+            chosen_ = ctx_.carry->take(t_);
+            if (chosen_.kind == ChosenSplit::Kind::Range) {
+                ++skip.parallel_nodes;
+                range_ = true;
+                plan_ = Plan::Middle;
+                chunks_ = 0;
+                chunk_.clear();
+                return true;
+            }
+            m_ = chosen_.m;
+            split_ = chosen_.s;
+        } else if (plan_ == Plan::Sah) {
             m_ = BinMapper::make(t_.cbounds, bins_for(t_.size(), ctx_.options->bins));
             if (!m_.any_valid()) {
                 ++skip.coincident_nodes;
@@ -104,7 +118,7 @@ private:
         if (want > kMaxChunks) want = std::max<uint64_t>(team_, kMaxChunks / team_ * team_);
         chunk_size_ = static_cast<uint32_t>(((size + want - 1) / want + 63) / 64 * 64);
         chunks_ = static_cast<uint32_t>((uint64_t(t_.size()) + chunk_size_ - 1) / chunk_size_);
-        const uint32_t binned = plan_ == Plan::Sah ? chunks_ : 0;
+        const uint32_t binned = bin_chunks();
         chunk_sizes_.assign(sizes_ ? binned : 0, SizeBins{});
         bin_pool_.clear();
         free_bins_.clear();
@@ -115,14 +129,16 @@ private:
 
     bool decide_impl(SkipCounts& skip) {
         if (plan_ != Plan::Sah) return true;
-        for (size_t i = 1; i < bin_pool_.size(); ++i) bin_pool_[0]->merge(*bin_pool_[i], m_.bins);
-        split_ = evaluate(*bin_pool_[0], m_, t_.bounds, *ctx_.options);
-        if (sizes_) {
-            for (uint32_t i = 1; i < chunks_; ++i) chunk_sizes_[0].merge(chunk_sizes_[i]);
-            consider_size_split(chunk_sizes_[0], cuts_, t_.bounds, *ctx_.options, split_);
-            skip.size_splits += split_.by_size();
+        if (!t_.carried) {
+            for (size_t i = 1; i < bin_pool_.size(); ++i) bin_pool_[0]->merge(*bin_pool_[i], m_.bins);
+            split_ = evaluate(*bin_pool_[0], m_, t_.bounds, *ctx_.options);
+            if (sizes_) {
+                for (uint32_t i = 1; i < chunks_; ++i) chunk_sizes_[0].merge(chunk_sizes_[i]);
+                consider_size_split(chunk_sizes_[0], cuts_, t_.bounds, *ctx_.options, split_);
+                skip.size_splits += split_.by_size();
+            }
+            if (sah_says_leaf(split_, t_.size(), *ctx_.options)) return false;
         }
-        if (sah_says_leaf(split_, t_.size(), *ctx_.options)) return false;
         if (!split_.found()) {
             plan_ = Plan::Middle;
             return true;
@@ -137,7 +153,7 @@ private:
 public:
     // Parallel over [0, sample_chunks()), before the bin phase: bins one
     // chunk's share of the sample (binning_mapper() in kernel.h).
-    uint32_t sample_chunks() const { return plan_ == Plan::Sah && sample_step_ ? chunks_ : 0; }
+    uint32_t sample_chunks() const { return plan_ == Plan::Sah && !t_.carried && sample_step_ ? chunks_ : 0; }
     void sample_chunk(uint32_t i) {
         BinSet* b = take_bins();
         const auto [lo, hi] = chunk_range(i);
@@ -156,7 +172,7 @@ public:
     }
 
     // Parallel over [0, bin_chunks()): bins one chunk.
-    uint32_t bin_chunks() const { return plan_ == Plan::Sah ? chunks_ : 0; }
+    uint32_t bin_chunks() const { return plan_ == Plan::Sah && !t_.carried ? chunks_ : 0; }
     void bin_chunk(uint32_t i) {
         BinSet* b = take_bins();
         const auto [lo, hi] = chunk_range(i);
@@ -213,13 +229,27 @@ public:
         chunk_[i] = result_of(acc, 0);
     }
 
-    // Serial: merges the chunks' bounds and writes the children.
-    void finish(NodeTask children[2]) {
-        PartitionResult r;
-        for (const PartitionResult& c : chunk_) r.merge(c);
-        r.mid = t_.begin + (moves() ? split_.left_count : t_.size() / 2);
-        if (moves() && from_bins()) bounds_from_bins(*bin_pool_[0], m_, t_, split_, r);
-        emit(t_, r, children);
+    // Serial: merges the chunks' bounds and writes the children; then, at
+    // a node that rotates, chooses theirs and may rotate (as run_node()).
+    void finish(NodeTask children[2], SkipCounts& skip) {
+        if (range_) {
+            split_as_chosen(ctx_, t_, chosen_, children);
+        } else {
+            PartitionResult r;
+            for (const PartitionResult& c : chunk_) r.merge(c);
+            r.mid = t_.begin + (moves() ? split_.left_count : t_.size() / 2);
+            if (moves() && from_bins()) {
+                if (t_.carried)
+                    r.acc = chosen_.part.acc;
+                else
+                    bounds_from_bins(*bin_pool_[0], m_, t_, split_, r);
+            }
+            emit(t_, r, children);
+        }
+        if (rotates(ctx_, t_)) {
+            if (bin_pool_.empty()) new_bins();
+            rotate_children(ctx_, t_, children, *bin_pool_[0], skip);
+        }
     }
 
 private:
@@ -267,6 +297,8 @@ private:
     bool sizes_ = false;  // the size split is offered (SizeCuts::applies)
     uint32_t sample_step_ = 0;  // the axis is chosen from a sample of this step (samples_axis()); 0: not
     Split split_;
+    ChosenSplit chosen_;  // t_.carried: the split chosen for it before
+    bool range_ = false;  // chosen_ is a range: nothing to partition
     uint32_t chunks_ = 0;
     uint32_t chunk_size_ = kChunk;
     std::vector<std::unique_ptr<BinSet>> bin_pool_;  // see take_bins()
@@ -321,7 +353,7 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
         });
     } else
         phase(TraceSpan::Count, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.middle_chunk(i); }); });
-    phase(TraceSpan::Finish, [&] { serial([&] { pn.finish(children); }); });
+    phase(TraceSpan::Finish, [&] { serial([&] { pn.finish(children, skip); }); });
     return true;
 }
 

@@ -139,6 +139,7 @@ int run_build(const BuildArgs& a) {
         sk["bound_leaves"] = stats.skipped.bound_leaves;
         sk["exact_nodes"] = stats.skipped.exact_nodes;
         sk["sampled_axes"] = stats.skipped.sampled_axes;
+        sk["rotations"] = stats.skipped.rotations;
         j["skipped"] = sk;
         j["size_splits"] = stats.skipped.size_splits;
         std::cout << j.dump() << "\n";

@@ -70,6 +70,17 @@ inline void bounds_from_bins(const BinArrays& bins, const BinMapper& m, const No
     }
 }
 
+// Where the children of t sit in the tree: their depth, parent and turns,
+// for the layout's arithmetic.
+inline void link(const NodeTask& t, NodeTask out[2]) {
+    for (int k = 0; k < 2; ++k) {
+        out[k].depth = t.depth + 1;
+        out[k].parent_begin = t.begin;
+        out[k].is_right = k == 1;
+        out[k].rights = static_cast<uint8_t>(t.rights + k);
+    }
+}
+
 // Step 4: the two child tasks of a split node.
 inline void emit(const NodeTask& t, const PartitionResult& p, NodeTask out[2]) {
     out[0].begin = t.begin;
@@ -82,12 +93,8 @@ inline void emit(const NodeTask& t, const PartitionResult& p, NodeTask out[2]) {
     out[1].cbounds = p.right_cbounds();
     out[0].max_area = p.left_max_area();
     out[1].max_area = p.right_max_area();
-    for (int k = 0; k < 2; ++k) {
-        out[k].depth = t.depth + 1;
-        out[k].parent_begin = t.begin;
-        out[k].is_right = k == 1;
-        out[k].rights = static_cast<uint8_t>(t.rights + k);
-    }
+    out[0].carried = out[1].carried = false;
+    link(t, out);
 }
 
 }  // namespace canopy

@@ -26,9 +26,13 @@ struct NodeTask {
     uint32_t parent_begin = 0;
     uint8_t rights = 0;
     bool is_right = false;
+    // The node's split was chosen before its task runs (by its parent, see
+    // kernel/rotate.h) and waits in the build's CarriedSplits.
+    bool carried = false;
 
     uint32_t size() const { return end - begin; }
 };
+static_assert(sizeof(NodeTask) == 72, "NodeTask is copied by every queue: keep it at 72 bytes");
 
 // Counters of work skipped, summed over a build. Integers only, so the sums
 // do not depend on the order workers add them.
@@ -43,6 +47,7 @@ struct SkipCounts {
     uint64_t size_splits = 0;         // not a skip: nodes split by primitive size (see SizeCuts)
     uint64_t exact_nodes = 0;         // nodes of at most kExactMaxPrims primitives costed exactly, not binned
     uint64_t sampled_axes = 0;        // big nodes binned on one axis, chosen from a sample (samples_axis())
+    uint64_t rotations = 0;           // not a skip: nodes regrouped with a child's children (kernel/rotate.h)
 
     void add(const SkipCounts& o) {
         axes_not_binned += o.axes_not_binned;
@@ -55,6 +60,7 @@ struct SkipCounts {
         size_splits += o.size_splits;
         exact_nodes += o.exact_nodes;
         sampled_axes += o.sampled_axes;
+        rotations += o.rotations;
     }
 };
 
