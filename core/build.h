@@ -55,6 +55,7 @@ void build_into(BuildState& st, size_t count, BuildStats* stats) {
     reserve_on_huge_pages(st.bvh.permutation, count);
     st.bvh.permutation.resize(count);
     S::run(st);
+    assert(st.carried.size() == 0 && "every split chosen ahead was taken by its task");
     if (st.trace) st.trace->resolve(st.bvh.nodes, st.n);
     if (stats) *stats = st.stats;
 }

@@ -199,6 +199,8 @@ TEST(BuildOptionsCheck, OutOfRangeFieldsThrowOptionError) {
     bad([](BuildOptions& o) { o.intersection_cost = -1.0f; }, "intersection_cost");
     bad([](BuildOptions& o) { o.intersection_cost = 0.0f; }, "intersection_cost");
     bad([](BuildOptions& o) { o.threads = 5000; }, "threads");
+    bad([](BuildOptions& o) { o.rotate_min = 1; }, "rotate_min");
+    bad([](BuildOptions& o) { o.rotate_min = canopy::kRotateMinPrims - 1; }, "rotate_min");
 
     // The limits themselves are accepted.
     for (uint32_t bins : {2u, 256u})
@@ -210,6 +212,68 @@ TEST(BuildOptionsCheck, OutOfRangeFieldsThrowOptionError) {
             EXPECT_NO_THROW(opt.check());
             EXPECT_TRUE(canopy::validate(build(m, opt), m.view(), opt).ok());
         }
+}
+
+// Tree rotations (core/kernel/rotate.h): where the build takes them, the
+// tree is valid and its SAH strictly lower than without them, since every
+// subtree keeps its records in order and splits as before, and only the
+// rotated nodes' boxes change, each for a smaller one. Where it takes none,
+// the splits it chose ahead and carried to the children's tasks give the
+// same tree, bit for bit, as the build without rotations.
+TEST(BuildRotations, LowerTheSahWhereTaken) {
+    struct Case {
+        const char* name;
+        TriangleMesh mesh;
+    };
+    const Case cases[] = {{"stadium", canopy::generate("stadium", 30000, 1)},
+                          {"sphere", canopy::generate("sphere", 20000, 1)},
+                          {"room", canopy::generate("room", 20000, 1)}};
+    for (const Case& c : cases) {
+        for (uint32_t bins : {8u, 32u}) {
+            BuildOptions plain;
+            plain.bins = bins;
+            plain.rotate_min = 0;
+            BuildOptions rotating = plain;
+            rotating.rotate_min = canopy::kRotateMinPrims;
+            BuildStats none, some;
+            const Bvh a = build(c.mesh, plain, &none), b = build(c.mesh, rotating, &some);
+            const std::string what = std::string(c.name) + " bins " + std::to_string(bins);
+            EXPECT_EQ(none.skipped.rotations, 0u) << what;
+            EXPECT_GT(some.skipped.rotations, 0u) << what;
+            const canopy::ValidationReport rep = canopy::validate(b, c.mesh.view(), rotating);
+            EXPECT_TRUE(rep.ok()) << what << ": " << rep.summary();
+            EXPECT_LT(canopy::sah_cost(b), canopy::sah_cost(a)) << what;
+            EXPECT_EQ(a.nodes.size(), b.nodes.size()) << what << ": the same leaves, grouped otherwise";
+        }
+    }
+}
+
+TEST(BuildRotations, WithoutRotationsTheCarriedSplitsChangeNothing) {
+    const TriangleMesh m = canopy::generate("random", 20000, 7);
+    BuildOptions plain;
+    plain.rotate_min = 0;
+    BuildOptions rotating;
+    rotating.rotate_min = canopy::kRotateMinPrims;
+    BuildStats stats;
+    const Bvh a = build(m, plain), b = build(m, rotating, &stats);
+    ASSERT_EQ(stats.skipped.rotations, 0u) << "this scene was chosen for taking none";
+    ASSERT_EQ(a.nodes.size(), b.nodes.size());
+    EXPECT_EQ(0, std::memcmp(a.nodes.data(), b.nodes.data(), a.nodes.size() * sizeof(Node)));
+    EXPECT_EQ(a.permutation, b.permutation);
+}
+
+// A rotation moves two subtrees one level down; near the depth cap none is
+// taken, and the tree stays within it.
+TEST(BuildRotations, RespectTheDepthCap) {
+    const TriangleMesh m = canopy::generate("stadium", 30000, 1);
+    for (uint32_t depth : {14u, 16u, 20u, 64u}) {
+        BuildOptions opt;
+        opt.max_depth = depth;
+        opt.rotate_min = canopy::kRotateMinPrims;
+        const Bvh b = build(m, opt);
+        const canopy::ValidationReport rep = canopy::validate(b, m.view(), opt);
+        EXPECT_TRUE(rep.ok()) << "max_depth " << depth << ": " << rep.summary();
+    }
 }
 
 TEST(BuildOptionsCheck, MaxDepthTooSmallForTheCount) {

@@ -102,11 +102,14 @@ inline void expect_input_error(const std::function<void()>& fn, const std::vecto
 
 // Tuning turned down so that small scenes reach every code path of the
 // parallel schedulers: threads start from 64 primitives, team-parallel nodes
-// from 512, tasks from 64.
+// from 512, tasks from 64; and rotations are costed at nodes of 256
+// primitives or more (kRotateMinPrims), in tasks, inline subtrees and team
+// nodes alike (this one changes the tree, for every scheduler the same).
 inline BuildOptions small_tuning(uint32_t bins, uint32_t threads) {
     BuildOptions o;
     o.bins = bins;
     o.threads = threads;
+    o.rotate_min = canopy::kRotateMinPrims;
     o.tuning.prims_per_thread = 64;
     o.tuning.task_cutoff = 64;
     o.tuning.parallel_node_min = 512;

@@ -41,6 +41,7 @@ struct BenchArgs {
     std::string csv;
     uint32_t bins = BuildOptions{}.bins;
     uint32_t leaf = BuildOptions{}.max_leaf;
+    uint32_t rotate_min = BuildOptions{}.rotate_min;
     bool core_check = true;
 };
 
@@ -119,6 +120,7 @@ public:
         threads_.erase(std::unique(threads_.begin(), threads_.end()), threads_.end());
         options_.bins = a.bins;
         options_.max_leaf = a.leaf;
+        options_.rotate_min = a.rotate_min;
         options_.check();
         if (a.core_check) cores_.emplace();
     }
@@ -154,8 +156,8 @@ private:
     void print_header() const {
         std::printf("canopy bench: build times in ms, medians of %u alternated runs (each round: the thread counts in a "
                     "seeded shuffle, the builders in a seeded shuffle within each; after one warm-up round, %u bytes "
-                    "per triangle touched and freed, then %u ms idle, before each run); bins %u, leaf %u\n",
-                    a_.repeat, a_.prefault, a_.gap_ms, a_.bins, a_.leaf);
+                    "per triangle touched and freed, then %u ms idle, before each run); bins %u, leaf %u, rotate_min %u\n",
+                    a_.repeat, a_.prefault, a_.gap_ms, a_.bins, a_.leaf, a_.rotate_min);
 #if CANOPY_HAVE_EMBREE
         std::printf("  vs_embree: median / median of Embree %s's scene build (rtcCommitScene) at the same "
                     "threads (< 1: faster than Embree)\n",
@@ -480,6 +482,9 @@ Runner add_bench(CLI::App& app) {
                     "table, which show when the CPUs run at unequal speeds)");
     bench->add_option("--bins", a->bins, "Bins per axis (2-256)")->capture_default_str();
     bench->add_option("--leaf", a->leaf, "Largest leaf (1-255)")->capture_default_str();
+    bench->add_option("--rotate-min", a->rotate_min,
+                      "Nodes of at least this many primitives may take a tree rotation (0 = none, else >= 256)")
+        ->capture_default_str();
     return [a, bench]() {
         if (!*bench) return -1;
         Bench b(*a);

@@ -26,6 +26,7 @@ struct BuildArgs {
     uint32_t threads = 0;
     uint32_t bins = BuildOptions{}.bins;
     uint32_t leaf = BuildOptions{}.max_leaf;
+    uint32_t rotate_min = BuildOptions{}.rotate_min;
     uint32_t repeat = 1;
     bool json = false;
     bool warm = false;
@@ -39,6 +40,7 @@ int run_build(const BuildArgs& a) {
     BuildOptions opt;
     opt.bins = a.bins;
     opt.max_leaf = a.leaf;
+    opt.rotate_min = a.rotate_min;
     opt.threads = a.threads;
     opt.check();
     const TriangleView view = scene.mesh.view();
@@ -125,6 +127,7 @@ int run_build(const BuildArgs& a) {
         j["threads_used"] = stats.threads_used;
         j["bins"] = opt.bins;
         j["max_leaf"] = opt.max_leaf;
+        j["rotate_min"] = opt.rotate_min;
         j["repeat"] = a.repeat;
         j["warm"] = a.warm;
         j["peak_bytes"] = peak_bytes;
@@ -173,6 +176,9 @@ Runner add_build(CLI::App& app) {
     build->add_option("--threads", a->threads, "Thread upper bound (0 = all hardware threads)")->capture_default_str();
     build->add_option("--bins", a->bins, "Bins per axis (2-256)")->capture_default_str();
     build->add_option("--leaf", a->leaf, "Largest leaf (1-255)")->capture_default_str();
+    build->add_option("--rotate-min", a->rotate_min,
+                      "Nodes of at least this many primitives may take a tree rotation (0 = none, else >= 256)")
+        ->capture_default_str();
     build->add_option("--repeat", a->repeat, "Builds to time; build_ms is their median")
         ->capture_default_str()
         ->check(CLI::Range(1u, 100000u));

@@ -40,6 +40,7 @@ struct SweepArgs {
     std::string threads = "1,2";
     std::string scheduler = default_scheduler();
     uint32_t leaf = BuildOptions{}.max_leaf;
+    uint32_t rotate_min = BuildOptions{}.rotate_min;
     uint32_t rays = 100000;
     uint32_t repeat = 3;
     std::string csv;
@@ -175,6 +176,7 @@ bool run_scene(const SweepArgs& a, const std::string& spec, const SchedulerEntry
 
     BuildOptions base;
     base.max_leaf = a.leaf;
+    base.rotate_min = a.rotate_min;
     base.check();
 
     // The exact tree, and the ray set (its hits are the reference).
@@ -244,8 +246,8 @@ bool run_scene(const SweepArgs& a, const std::string& spec, const SchedulerEntry
 
 void print_table(const SceneResult& s, const std::vector<uint32_t>& threads_list, const SweepArgs& a,
                  const char* sched) {
-    std::printf("scene %s: %zu triangles, %s, leaf %u, median of %u builds, %u rays\n", s.name.c_str(),
-                s.triangles, sched, a.leaf, a.repeat, a.rays);
+    std::printf("scene %s: %zu triangles, %s, leaf %u, rotate_min %u, median of %u builds, %u rays\n",
+                s.name.c_str(), s.triangles, sched, a.leaf, a.rotate_min, a.repeat, a.rays);
     std::string header = "  bins";
     for (uint32_t t : threads_list) {
         char buf[32];
@@ -473,6 +475,9 @@ Runner add_sweep(CLI::App& app) {
         ->capture_default_str();
     sweep->add_option("--scheduler", a->scheduler, "Scheduler: " + scheduler_names())->capture_default_str();
     sweep->add_option("--leaf", a->leaf, "Largest leaf (1-255)")->capture_default_str();
+    sweep->add_option("--rotate-min", a->rotate_min,
+                      "Nodes of at least this many primitives may take a tree rotation (0 = none, else >= 256)")
+        ->capture_default_str();
     sweep->add_option("--rays", a->rays, "Rays in the fixed ray set (half primary, half secondary)")
         ->capture_default_str()
         ->check(CLI::Range(1u, 100000000u));
