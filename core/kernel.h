@@ -157,17 +157,13 @@ inline void write_leaf(const KernelContext& ctx, const NodeTask& t) {
 }
 
 // Steps 1 and 2 for a node that is binned (more than kExactMaxPrims
-// primitives whose centroids are not all equal; `full` is its mapping on
-// every valid axis): sets `m` to the mapping it is binned with (one axis,
-// chosen from a sample, for big nodes: binning_mapper()) and returns its
-// cheapest split, by a plane or by size. A node of more than kBinBlock
+// primitives whose centroids are not all equal), with mapping `m` (from
+// binning_mapper()): returns its cheapest split, by a plane or by size. A node of more than kBinBlock
 // primitives, which is partitioned by its keys, leaves them in the
 // permutation's slots of its range, which only its leaves write, later.
-inline Split bin_and_evaluate(const KernelContext& ctx, const NodeTask& t, const BinMapper& full, BinMapper& m,
-                              BinSet& bins, SkipCounts& skip) {
+[[gnu::always_inline]] inline Split bin_and_evaluate(const KernelContext& ctx, const NodeTask& t, const BinMapper& m,
+                                                      BinSet& bins, SkipCounts& skip) {
     const BuildOptions& opt = *ctx.options;
-    assert(full.bins <= bins.max_bins());
-    m = binning_mapper(ctx.refs, t, full, bins, opt, skip);
     uint32_t* const keys = t.size() > kBinBlock ? ctx.permutation : nullptr;
     Split s;
 #if CANOPY_REGISTER_BINS
@@ -211,6 +207,13 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
     // on the copy; about a tenth of run_node()'s own samples).
     const auto split = [&](const PartitionResult& part) {
         emit(t, part, children);
+        return true;
+    };
+    // A split by SAH of a node that may be big enough to rotate: middle
+    // splits are not rotated, and the other SAH splits are of nodes smaller
+    // than kRotateMinPrims (as in ParallelNode::finish()).
+    const auto sah_split = [&](const PartitionResult& part) {
+        emit(t, part, children);
         if (rotates(ctx, t)) [[unlikely]]
             rotate_children(ctx, t, children, bins, skip);
         return true;
@@ -223,8 +226,7 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
         return false;
     }
     if (t.carried) [[unlikely]] {
-        split_as_chosen(ctx, t, ctx.carry->take(t), children);
-        if (rotates(ctx, t)) rotate_children(ctx, t, children, bins, skip);
+        run_chosen(ctx, t, children, bins, skip);
         return true;
     }
     if (t.size() <= opt.max_leaf && leaf_by_bound(ctx.refs, t, opt)) {
@@ -254,18 +256,20 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
         return split(middle_split(ctx.refs, t.begin, t.end));
     }
     skip.axes_not_binned += 3 - full.valid_count();
-    BinMapper m;
-    const Split s = bin_and_evaluate(ctx, t, full, m, bins, skip);
+    assert(full.bins <= bins.max_bins());
+    const BinMapper m = binning_mapper(ctx.refs, t, full, bins, opt, skip);
+    const Split s = bin_and_evaluate(ctx, t, m, bins, skip);
     if (sah_says_leaf(s, t.size(), opt)) {
         write_leaf(ctx, t);
         return false;
     }
     if (!s.found()) return split(middle_split(ctx.refs, t.begin, t.end));
-    if (s.by_size()) return split(partition(ctx.refs, t.begin, t.end, m, s));
+    if (s.by_size()) return sah_split(partition(ctx.refs, t.begin, t.end, m, s));
+    static_assert(kBinBlock < kRotateMinPrims);
     if (t.size() <= kBinBlock) return split(partition_binned(ctx.refs, t.begin, t.end, s, bins));
     PartitionResult part = partition_by_keys(ctx.refs, t.begin, t.end, s, ctx.permutation, ctx.shared);
     bounds_from_bins(bins, m, t, s, part);
-    return split(part);
+    return sah_split(part);
 }
 
 }  // namespace canopy

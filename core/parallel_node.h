@@ -246,7 +246,7 @@ public:
             }
             emit(t_, r, children);
         }
-        if (rotates(ctx_, t_)) {
+        if ((range_ || moves()) && rotates(ctx_, t_)) {  // SAH splits only, as run_node()
             if (bin_pool_.empty()) new_bins();
             rotate_children(ctx_, t_, children, *bin_pool_[0], skip);
         }

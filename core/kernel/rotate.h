@@ -158,7 +158,8 @@ inline bool choose_ahead(const KernelContext& ctx, const NodeTask& c, BinSet& bi
     if (!full.any_valid()) return false;
     mine.axes_not_binned += 3 - full.valid_count();
     out = ChosenSplit{};
-    out.s = bin_and_evaluate(ctx, c, full, out.m, bins, mine);
+    out.m = binning_mapper(ctx.refs, c, full, bins, opt, mine);
+    out.s = bin_and_evaluate(ctx, c, out.m, bins, mine);
     if (!out.s.found()) return false;  // a middle split: its task will find it again
     if (!out.s.by_size()) {
         out.part.mid = c.begin + out.s.left_count;
@@ -185,8 +186,8 @@ inline void exchange_ranges(const KernelContext& ctx, uint32_t a, uint32_t b, ui
 // After node t split into children ch (written by emit() or
 // split_as_chosen()): chooses the children's splits, and either carries them
 // to the children's tasks, or takes the best rotation and rewrites ch.
-inline void rotate_children(const KernelContext& ctx, const NodeTask& t, NodeTask ch[2], BinSet& bins,
-                            SkipCounts& skip) {
+[[gnu::noinline, gnu::cold]] inline void rotate_children(const KernelContext& ctx, const NodeTask& t, NodeTask ch[2],
+                                                         BinSet& bins, SkipCounts& skip) {
     const BuildOptions& opt = *ctx.options;
     // A rotation moves two subtrees one level down: only with depth to spare
     // (their tasks then still split by SAH, see plan()).
@@ -258,6 +259,13 @@ inline void rotate_children(const KernelContext& ctx, const NodeTask& t, NodeTas
     ch[0] = lone == 0 ? r[0] : y;
     ch[1] = lone == 0 ? y : r[2];
     link(t, ch);
+}
+
+// run_node() of a task whose split was chosen before it ran.
+[[gnu::noinline, gnu::cold]] inline void run_chosen(const KernelContext& ctx, const NodeTask& t, NodeTask children[2],
+                                                    BinSet& bins, SkipCounts& skip) {
+    split_as_chosen(ctx, t, ctx.carry->take(t), children);
+    if (rotates(ctx, t)) rotate_children(ctx, t, children, bins, skip);
 }
 
 }  // namespace canopy
