@@ -229,9 +229,8 @@ public:
         chunk_[i] = result_of(acc, 0);
     }
 
-    // Serial: merges the chunks' bounds and writes the children; then, at
-    // a node that rotates, chooses theirs and may rotate (as run_node()).
-    void finish(NodeTask children[2], SkipCounts& skip) {
+    // Serial: merges the chunks' bounds and writes the children.
+    void finish(NodeTask children[2]) {
         if (range_) {
             split_as_chosen(ctx_, t_, chosen_, children);
         } else {
@@ -246,10 +245,23 @@ public:
             }
             emit(t_, r, children);
         }
-        if ((range_ || moves()) && rotates(ctx_, t_)) {  // SAH splits only, as run_node()
-            if (bin_pool_.empty()) new_bins();
-            rotate_children(ctx_, t_, children, *bin_pool_[0], skip);
-        }
+    }
+
+    // Whether the node, split by SAH, chooses its children's splits and
+    // may rotate (kernel/rotate.h; run_node() takes the same decision).
+    bool looks_ahead() const { return (range_ || moves()) && rotates(ctx_, t_) && rotation_room(*ctx_.options, t_); }
+    // Parallel over [0, 2), after finish(): chooses child i's split.
+    void look_ahead(uint32_t i, const NodeTask children[2]) {
+        BinSet* b = take_bins();
+        has_ahead_[i] = choose_ahead(ctx_, children[i], *b, ahead_skip_[i], ahead_[i]);
+        give_back(b);
+    }
+    // Serial, after look_ahead(): carries the children's splits to them or
+    // rotates.
+    void rotate(NodeTask children[2], SkipCounts& skip) {
+        skip.add(ahead_skip_[0]);
+        skip.add(ahead_skip_[1]);
+        rotate_chosen(ctx_, t_, children, ahead_, has_ahead_, skip);
     }
 
 private:
@@ -299,6 +311,9 @@ private:
     Split split_;
     ChosenSplit chosen_;  // t_.carried: the split chosen for it before
     bool range_ = false;  // chosen_ is a range: nothing to partition
+    ChosenSplit ahead_[2];  // the children's splits (look_ahead())
+    bool has_ahead_[2] = {false, false};
+    SkipCounts ahead_skip_[2];
     uint32_t chunks_ = 0;
     uint32_t chunk_size_ = kChunk;
     std::vector<std::unique_ptr<BinSet>> bin_pool_;  // see take_bins()
@@ -353,7 +368,13 @@ bool run_parallel_node(ParallelNode& pn, NodeTask children[2], SkipCounts& skip,
         });
     } else
         phase(TraceSpan::Count, [&] { for_each(pn.chunks(), [&](uint32_t i) { pn.middle_chunk(i); }); });
-    phase(TraceSpan::Finish, [&] { serial([&] { pn.finish(children, skip); }); });
+    phase(TraceSpan::Finish, [&] {
+        serial([&] { pn.finish(children); });
+        if (pn.looks_ahead()) {  // the children's splits, one child per thread
+            for_each(2, [&](uint32_t i) { pn.look_ahead(i, children); });
+            serial([&] { pn.rotate(children, skip); });
+        }
+    });
     return true;
 }
 

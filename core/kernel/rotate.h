@@ -174,7 +174,7 @@ inline bool choose_ahead(const KernelContext& ctx, const NodeTask& c, BinSet& bi
 // more than this fraction of the area of the node it is taken at: smaller
 // gains (the 1M sphere's three rotations at nodes of 65,536 primitives or
 // more lowered its SAH by 0.04% all together) are not worth moving records.
-inline constexpr double kRotateMinGain = 0x1p-7;
+inline constexpr double kRotateMinGain = 0x1p-4;
 
 // Exchanges the adjacent ranges [a, b) and [b, c) of the records and of the
 // permutation's slots (where the bin keys of a carried child are).
@@ -183,18 +183,18 @@ inline void exchange_ranges(const KernelContext& ctx, uint32_t a, uint32_t b, ui
     std::rotate(ctx.permutation + a, ctx.permutation + b, ctx.permutation + c);
 }
 
+// Whether a rotation at t keeps the tree within the depth cap: it moves two
+// subtrees one level down, whose tasks must still split by SAH (plan()).
+inline bool rotation_room(const BuildOptions& opt, const NodeTask& t) {
+    return opt.max_depth > t.depth + 2 + ceil_log2(t.size());
+}
+
 // After node t split into children ch (written by emit() or
-// split_as_chosen()): chooses the children's splits, and either carries them
-// to the children's tasks, or takes the best rotation and rewrites ch.
-[[gnu::noinline, gnu::cold]] inline void rotate_children(const KernelContext& ctx, const NodeTask& t, NodeTask ch[2],
-                                                         BinSet& bins, SkipCounts& skip) {
-    const BuildOptions& opt = *ctx.options;
-    // A rotation moves two subtrees one level down: only with depth to spare
-    // (their tasks then still split by SAH, see plan()).
-    if (opt.max_depth <= t.depth + 2 + ceil_log2(t.size())) return;
-    ChosenSplit c[2];
-    bool has[2];
-    for (int k = 0; k < 2; ++k) has[k] = choose_ahead(ctx, ch[k], bins, skip, c[k]);
+// split_as_chosen()), whose splits were chosen into c where has[k] (by
+// choose_ahead()): either carries the chosen splits to the children's
+// tasks, or takes the best rotation and rewrites ch.
+inline void rotate_chosen(const KernelContext& ctx, const NodeTask& t, NodeTask ch[2], const ChosenSplit c[2],
+                          const bool has[2], SkipCounts& skip) {
     // Rotation (p, j): child p's child j trades places with child 1 - p;
     // child p's box becomes that of child 1 - p and p's child 1 - j.
     double best = kRotateMinGain * t.bounds.half_area();
@@ -259,6 +259,17 @@ inline void exchange_ranges(const KernelContext& ctx, uint32_t a, uint32_t b, ui
     ch[0] = lone == 0 ? r[0] : y;
     ch[1] = lone == 0 ? y : r[2];
     link(t, ch);
+}
+
+// Chooses the splits of t's children ch and takes what rotate_chosen()
+// decides (run_node(); a team runs the same steps, see ParallelNode).
+[[gnu::noinline, gnu::cold]] inline void rotate_children(const KernelContext& ctx, const NodeTask& t, NodeTask ch[2],
+                                                         BinSet& bins, SkipCounts& skip) {
+    if (!rotation_room(*ctx.options, t)) return;
+    ChosenSplit c[2];
+    bool has[2];
+    for (int k = 0; k < 2; ++k) has[k] = choose_ahead(ctx, ch[k], bins, skip, c[k]);
+    rotate_chosen(ctx, t, ch, c, has, skip);
 }
 
 // run_node() of a task whose split was chosen before it ran.
