@@ -1,11 +1,13 @@
 // rotations: how much lower canopy's SAH would be after local tree
 // rotations (Kensler's, "Tree rotations for improving bounding volume
-// hierarchies", 2008), a probe for a later kernel change, not part of the
-// build.
+// hierarchies", 2008) of the finished tree: the probe that led to the
+// build's own rotations (core/kernel/rotate.h), kept to see what is left.
 //
 //   ./build/bench/rotations SCENE... [--min-prims 256,4096,65536] [--passes 2]
+//                                    [--build-rotate-min 0]
 //
-// For each scene it builds the sequential tree (default options), then for
+// For each scene it builds the sequential tree (default options, but the
+// build's own rotations off unless --build-rotate-min says), then for
 // each order (post-order: children first, as Kensler; pre-order: the node
 // first, then its new children, which is what a build could decide top
 // down) and each threshold runs passes over the inner nodes of at least
@@ -20,9 +22,9 @@
 // The rotated tree is a valid BVH (checked here: every box holds its
 // children's, the leaves keep their primitives) but not in the canonical
 // layout (README, "The BVH layout"): swapping two subtrees moves their
-// nodes in pre-order. A build would take the decision before the subtrees
+// nodes in pre-order. The build takes the decision before the subtrees
 // exist, moving the records of the swapped ranges instead (see
-// docs/performance-log.md, 2026-12-07 night).
+// docs/performance-log.md, 2026-12-07 night and 2026-12-08).
 #include "core/sah.h"
 #include "core/scene.h"
 #include "schedulers/registry.h"
@@ -160,18 +162,24 @@ int main(int argc, char** argv) {
     std::vector<std::string> scenes;
     std::string thresholds = "256,4096,65536";
     unsigned passes = 2;
+    uint32_t build_rotate_min = 0;
     app.add_option("scene", scenes, "Mesh files or gen:NAME:COUNT[:SEED]")->required();
     app.add_option("--min-prims", thresholds, "Rotate only at nodes of at least this many primitives (a list)")
         ->capture_default_str();
     app.add_option("--passes", passes, "Passes over the tree per order and threshold")
         ->capture_default_str()
         ->check(CLI::Range(1u, 100u));
+    app.add_option("--build-rotate-min", build_rotate_min,
+                   "The build's own rotations (BuildOptions::rotate_min; 0 = none)")
+        ->capture_default_str();
     CLI11_PARSE(app, argc, argv);
     try {
         const std::vector<uint32_t> mins = cli::parse_list(thresholds, "--min-prims");
         for (const std::string& spec : scenes) {
             const TriangleMesh mesh = load_scene(spec).mesh;
-            const Bvh built = build<Sequential>(mesh.view(), BuildOptions{});
+            BuildOptions opt;
+            opt.rotate_min = build_rotate_min;
+            const Bvh built = build<Sequential>(mesh.view(), opt);
             const double sah = sah_cost(built);
             std::printf("%s: %zu triangles, %zu nodes, SAH %.4f\n", spec.c_str(), mesh.triangle_count(),
                         built.nodes.size(), sah);
