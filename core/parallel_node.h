@@ -22,6 +22,11 @@
 // (choose_axis()), as binning_mapper() does in run_node().
 // It bins every node it is given, so it is given none of the small nodes
 // that run_node() costs exactly (kExactMaxPrims; sched::team_parallel()).
+// A node of at least BuildOptions::rotate_min primitives then chooses its
+// children's splits, one child per thread (look_ahead()), and one thread
+// carries them to the children or rotates (kernel/rotate.h), as run_node()
+// does; a node whose split was chosen before (NodeTask::carried) skips the
+// binning, and one chosen as a range of records skips the partition too.
 #pragma once
 
 #include "kernel.h"

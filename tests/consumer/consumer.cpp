@@ -1,5 +1,6 @@
 // A tiny program built against an installed canopy through pkg-config.
-// Checks that every scheduler builds the same tree here, and prints the
+// Builds the scene named by its argument (a file or gen:NAME:COUNT[:SEED]),
+// checks that every scheduler builds the same tree here, and prints the
 // tree's hash, which check_install.sh compares with the canopy tool's: the
 // inline kernel compiled in a consumer must build the trees the library's
 // own build does.
@@ -8,8 +9,12 @@
 
 #include <cstdio>
 
-int main() {
-    const canopy::TriangleMesh mesh = canopy::generate("sphere", 20000, 1);
+int main(int argc, char** argv) {
+    if (argc != 2) {
+        std::fprintf(stderr, "usage: %s SCENE\n", argv[0]);
+        return 2;
+    }
+    const canopy::TriangleMesh mesh = canopy::load_scene(argv[1]).mesh;
     const canopy::Bvh a = canopy::build<canopy::Sequential>(mesh.view());
     bool same = true;
     for (const canopy::SchedulerEntry& s : canopy::schedulers()) same = same && s.build_triangles(mesh.view()) == a;
