@@ -209,16 +209,16 @@ inline bool run_node(const KernelContext& ctx, const NodeTask& t, NodeTask child
         emit(t, part, children);
         return true;
     };
+    const BuildOptions& opt = *ctx.options;
     // A split by SAH of a node that may be big enough to rotate: middle
     // splits are not rotated, and the other SAH splits are of nodes smaller
-    // than kRotateMinPrims (as in ParallelNode::finish()).
+    // than kRotateMinPrims (as in ParallelNode::looks_ahead()).
     const auto sah_split = [&](const PartitionResult& part) {
         emit(t, part, children);
-        if (rotates(ctx, t)) [[unlikely]]
+        if (t.size() >= opt.rotate_min) [[unlikely]]  // and rotate_min != 0: rotate_children() checks
             rotate_children(ctx, t, children, bins, skip);
         return true;
     };
-    const BuildOptions& opt = *ctx.options;
     const Plan p = plan(t, opt, skip);
     if (p == Plan::Middle) return split(middle_split(ctx.refs, t.begin, t.end));
     if (p != Plan::Sah) {

@@ -261,11 +261,12 @@ inline void rotate_chosen(const KernelContext& ctx, const NodeTask& t, NodeTask 
     link(t, ch);
 }
 
-// Chooses the splits of t's children ch and takes what rotate_chosen()
-// decides (run_node(); a team runs the same steps, see ParallelNode).
+// At a node that rotates (rotates(), checked here), chooses the splits of
+// t's children ch and takes what rotate_chosen() decides (run_node(); a
+// team runs the same steps, see ParallelNode).
 [[gnu::noinline, gnu::cold]] inline void rotate_children(const KernelContext& ctx, const NodeTask& t, NodeTask ch[2],
                                                          BinSet& bins, SkipCounts& skip) {
-    if (!rotation_room(*ctx.options, t)) return;
+    if (!rotates(ctx, t) || !rotation_room(*ctx.options, t)) return;
     ChosenSplit c[2];
     bool has[2];
     for (int k = 0; k < 2; ++k) has[k] = choose_ahead(ctx, ch[k], bins, skip, c[k]);
@@ -276,7 +277,7 @@ inline void rotate_chosen(const KernelContext& ctx, const NodeTask& t, NodeTask 
 [[gnu::noinline, gnu::cold]] inline void run_chosen(const KernelContext& ctx, const NodeTask& t, NodeTask children[2],
                                                     BinSet& bins, SkipCounts& skip) {
     split_as_chosen(ctx, t, ctx.carry->take(t), children);
-    if (rotates(ctx, t)) rotate_children(ctx, t, children, bins, skip);
+    rotate_children(ctx, t, children, bins, skip);
 }
 
 }  // namespace canopy
