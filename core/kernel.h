@@ -158,9 +158,10 @@ inline void write_leaf(const KernelContext& ctx, const NodeTask& t) {
 
 // Steps 1 and 2 for a node that is binned (more than kExactMaxPrims
 // primitives whose centroids are not all equal), with mapping `m` (from
-// binning_mapper()): returns its cheapest split, by a plane or by size. A node of more than kBinBlock
-// primitives, which is partitioned by its keys, leaves them in the
-// permutation's slots of its range, which only its leaves write, later.
+// binning_mapper()): returns its cheapest split, by a plane or by size. A
+// node of more than kBinBlock primitives, which is partitioned by its keys,
+// leaves them in the permutation's slots of its range, which only its
+// leaves write, later (run_node(), or its task after choose_ahead()).
 [[gnu::always_inline]] inline Split bin_and_evaluate(const KernelContext& ctx, const NodeTask& t, const BinMapper& m,
                                                       BinSet& bins, SkipCounts& skip) {
     const BuildOptions& opt = *ctx.options;
