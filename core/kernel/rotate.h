@@ -6,7 +6,8 @@
 // huge sparse box) that leaves nodes near the root whose child would be
 // better grouped with a grandchild: the SAH of canopy's tree was 2% above
 // Embree's rtcBuildBVH, and a dozen rotations near the root (bench/rotations,
-// docs/performance-log.md, 2026-12-07 night) brought it 1% below.
+// docs/performance-log.md, 2026-12-07 night) brought it 1% below; the
+// build takes six of them (31.73 against 32.02).
 //
 // A rotation in Kensler's sense ("Tree rotations for improving bounding
 // volume hierarchies", 2008): at node N with children A and B, where B has
@@ -17,7 +18,7 @@
 //
 // Taken during the build, at a node of at least BuildOptions::rotate_min
 // primitives, after the node's own split: both children's splits are chosen
-// (chose_ahead(), exactly as their own tasks would choose them), the four
+// (choose_ahead(), exactly as their own tasks would choose them), the four
 // rotations are costed from the boxes that gives, and the best one is taken
 // when it gains enough. Its three subtrees lie in record order T0 T1 T2; a
 // rotation groups two of them under a new node Y. When the one left alone is
@@ -28,8 +29,11 @@
 // to the children's tasks (CarriedSplits) and not chosen again, and Y's
 // split, which is no plane, is carried as the range it is. The decision
 // depends only on the node (never on the thread count or the scheduler), and
-// run_node() and a team's ParallelNode::finish() both take it here, so every
-// scheduler builds the same tree.
+// run_node() and a team-parallel node (ParallelNode::look_ahead() and
+// rotate()) both take it here, so every scheduler builds the same tree.
+//
+// Included by kernel.h after the steps it uses (plan(), binning_mapper(),
+// bin_and_evaluate(), KernelContext), not on its own.
 #pragma once
 
 #include "../geometry.h"
